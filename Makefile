@@ -1,0 +1,49 @@
+# Two commands do all set-up: `make run` and `make test`. Both create .venv when missing.
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed-stamp
+EXAMPLE ?= examples/car-phi2-fin.yaml
+DATA_DIR ?= var
+
+.PHONY: install run test lint typecheck unit spin bench clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	# torch first and pinned: the CPU wheel on disk; unpinned it pulls GBs of CUDA packages.
+	$(BIN)/python -m pip install --quiet torch==2.13.0
+	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+install: $(STAMP)
+
+# spin is the independent LTL translator the tests compare against.
+spin:
+	@command -v spin >/dev/null 2>&1 || { \
+	  if [ "$$(id -u)" = 0 ]; then \
+	    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq spin >/dev/null) \
+	      || echo "warning: could not install spin; the spin comparison tests will skip"; \
+	  else echo "warning: spin missing and not root; the spin comparison tests will skip"; fi; }
+
+run: install
+	mkdir -p $(DATA_DIR)
+	$(BIN)/ltlnav plan $(EXAMPLE) --json $(DATA_DIR)/plan.json --plot $(DATA_DIR)/plan.png
+
+lint: install
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+typecheck: install
+	$(BIN)/mypy
+
+unit: install spin
+	$(BIN)/pytest -q
+
+test: lint typecheck unit
+
+bench: install
+	$(BIN)/python -m pip install --quiet ompl || echo "warning: ompl unavailable; OMPL comparison skipped"
+	$(BIN)/python bench/planner.py
+
+clean:
+	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache

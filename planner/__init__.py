@@ -1,0 +1,4 @@
+"""ltlnav planner: LTL formulas, Büchi automata, worlds, RRT*, TL-RRT* and mission decomposition.
+
+Pure Python + numpy/scipy: no torch, no pybullet, no database.
+"""

@@ -1,0 +1,45 @@
+"""Typed errors whose messages a user can act on.
+
+Every layer raises these (or subclasses) for bad input; the CLI prints the message and the
+API maps them to 4xx responses.
+"""
+
+from __future__ import annotations
+
+
+class LtlnavError(Exception):
+    """Base class of every user-facing error of ltlnav."""
+
+
+class FormulaError(LtlnavError):
+    """An LTL formula that cannot be parsed or is not allowed for a mission.
+
+    ``column`` is 1-based and points into ``formula``; ``expected`` says what the parser wanted.
+    """
+
+    def __init__(self, message: str, formula: str = "", column: int | None = None,
+                 expected: str | None = None) -> None:
+        self.formula = formula
+        self.column = column
+        self.expected = expected
+        self.reason = message
+        super().__init__(self._render())
+
+    def _render(self) -> str:
+        if self.column is None:
+            return self.reason
+        pointer = " " * (self.column - 1) + "^"
+        return f"column {self.column}: {self.reason}\n  {self.formula}\n  {pointer}"
+
+
+class WorldError(LtlnavError):
+    """A world that is malformed or unusable; ``field`` is the dotted path of the culprit."""
+
+    def __init__(self, field: str, message: str) -> None:
+        self.field = field
+        self.reason = message
+        super().__init__(f"{field}: {message}")
+
+
+class PlanningError(LtlnavError):
+    """A mission for which no plan was found; the message says why (unsatisfiable, budget)."""
