@@ -1,0 +1,301 @@
+"""The r-ball guide of a sub-task, its progress tracker and the paper's reward.
+
+A guide is the planned geometric path of one sub-task covered by balls of radius ``r``
+centred on waypoints at most ``spacing`` apart (the paper uses touching balls, spacing
+``2 r`` with ``r = eta / 2``). Ball ``i`` carries ``dist_to_go[i]``, the path length from its
+centre to the end of the guide. The progress measure of a workspace point is
+
+    D(x) = min { dist_to_go[i] : x in ball i },   D(x) = inf outside every ball,
+
+and the progress index ``i_t`` is the ball with the least distance-to-go reached so far; keeping
+it in the state makes the reward Markovian (Cai et al., RA-L 2023). The reward is ``R-`` in an
+obstacle (first priority), ``R++`` at the destination, ``R+`` on a new minimum of ``D`` and 0
+otherwise.
+
+The envs layer calls this on every simulation step, so both paths are cheap: a vectorised batch
+path (a uniform grid of cell size ``2 r`` maps each cell to the few balls overlapping it, so a
+query costs O(balls per cell), not O(balls)) and a pure-Python scalar path for one point that
+costs a couple of microseconds.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class RewardConstants:
+    """The paper's reward values: ``R-`` (crash), ``R++`` (goal) and ``R+`` (progress)."""
+
+    crash: float = -100.0
+    goal: float = 200.0
+    progress: float = 5.0
+
+
+def paper_reward(
+    in_obstacle: np.ndarray,
+    at_goal: np.ndarray,
+    improved: np.ndarray,
+    constants: RewardConstants | None = None,
+) -> np.ndarray:
+    """Vectorised reward: ``R-`` if in an obstacle, else ``R++`` at the goal, else ``R+`` on
+    progress, else 0. The arguments are boolean arrays of one shape (a batch of envs)."""
+    c = constants if constants is not None else RewardConstants()
+    return np.where(
+        np.asarray(in_obstacle, dtype=bool),
+        c.crash,
+        np.where(
+            np.asarray(at_goal, dtype=bool),
+            c.goal,
+            np.where(np.asarray(improved, dtype=bool), c.progress, 0.0),
+        ),
+    ).astype(np.float64)
+
+
+def paper_reward_one(
+    in_obstacle: bool, at_goal: bool, improved: bool, constants: RewardConstants | None = None
+) -> float:
+    """Scalar twin of :func:`paper_reward` for a single env (no numpy overhead)."""
+    c = constants if constants is not None else RewardConstants()
+    if in_obstacle:
+        return c.crash
+    if at_goal:
+        return c.goal
+    if improved:
+        return c.progress
+    return 0.0
+
+
+def _resample(path: np.ndarray, spacing: float) -> np.ndarray:
+    """Keep every waypoint and insert evenly spaced points so that gaps are <= spacing."""
+    out = [path[0]]
+    for a, b in itertools.pairwise(path):
+        length = float(np.linalg.norm(b - a))
+        pieces = max(1, math.ceil(length / spacing - 1e-9))
+        for k in range(1, pieces + 1):
+            out.append(a + (b - a) * (k / pieces))
+    return np.asarray(out, dtype=np.float64)
+
+
+@dataclass(frozen=True, eq=False)
+class Guide:
+    """Balls of radius ``r`` along a guide path and their distance-to-go.
+
+    Build with :meth:`from_path`. ``centers`` is ``(m, d)``; ``dist_to_go`` is ``(m,)``,
+    non-increasing, 0 at the last ball. Since it is non-increasing, the ball realising the
+    minimum in ``D(x)`` is the highest-indexed ball containing ``x``.
+    """
+
+    centers: np.ndarray
+    dist_to_go: np.ndarray
+    r: float
+    _origin: np.ndarray = field(repr=False)
+    _origin_t: tuple[float, ...] = field(repr=False)
+    _cell: float = field(repr=False)
+    _inv_cell: float = field(repr=False)
+    _rr: float = field(repr=False)
+    _strides: np.ndarray = field(repr=False)
+    _shape: np.ndarray = field(repr=False)
+    _keys: np.ndarray = field(repr=False)
+    _table: np.ndarray = field(repr=False)
+    _buckets: dict[tuple[int, ...], tuple[tuple[int, tuple[float, ...]], ...]] = field(repr=False)
+
+    @classmethod
+    def from_path(cls, path: np.ndarray, r: float, spacing: float | None = None) -> Guide:
+        """Guide of ``path`` ``(n, d)`` with balls of radius ``r`` at most ``spacing`` apart
+        (default ``2 r``: touching balls). Repeated consecutive waypoints are dropped."""
+        pts = np.asarray(path, dtype=np.float64)
+        if pts.ndim != 2 or len(pts) == 0:
+            raise ValueError("a guide path must be a non-empty (n, d) array")
+        if not r > 0:
+            raise ValueError("the ball radius r must be > 0")
+        step = 2.0 * r if spacing is None else float(spacing)
+        if not step > 0:
+            raise ValueError("the ball spacing must be > 0")
+        keep = np.ones(len(pts), dtype=bool)
+        keep[1:] = np.any(pts[1:] != pts[:-1], axis=1)
+        pts = pts[keep]
+        centers = _resample(pts, step) if len(pts) > 1 else pts.copy()
+        seg = np.linalg.norm(np.diff(centers, axis=0), axis=1)
+        dist = np.concatenate([np.cumsum(seg[::-1])[::-1], [0.0]])
+        return cls._build(centers, dist, float(r))
+
+    @classmethod
+    def _build(cls, centers: np.ndarray, dist: np.ndarray, r: float) -> Guide:
+        cell = 2.0 * r
+        origin = centers.min(axis=0) - r
+        lo = np.floor((centers - r - origin) / cell).astype(np.int64)
+        hi = np.floor((centers + r - origin) / cell).astype(np.int64)
+        shape = hi.max(axis=0) + 1
+        members: dict[tuple[int, ...], list[int]] = {}
+        for i in range(len(centers)):
+            ranges = [range(int(a), int(b) + 1) for a, b in zip(lo[i], hi[i], strict=True)]
+            for key in itertools.product(*ranges):
+                members.setdefault(key, []).append(i)
+        # Highest index first: the first ball found that contains x is the one with least D.
+        buckets = {
+            key: tuple((i, tuple(float(v) for v in centers[i])) for i in sorted(ids, reverse=True))
+            for key, ids in members.items()
+        }
+        keys_sorted = sorted(members)
+        width = max(len(v) for v in members.values())
+        table = np.full((len(keys_sorted), width), -1, dtype=np.int64)
+        for row, key in enumerate(keys_sorted):
+            ids = sorted(members[key], reverse=True)
+            table[row, : len(ids)] = ids
+        strides = np.cumprod(np.concatenate([[1], shape[::-1][:-1]]))[::-1]
+        flat = np.array([int(np.dot(k, strides)) for k in keys_sorted], dtype=np.int64)
+        return cls(
+            centers=centers,
+            dist_to_go=dist,
+            r=r,
+            _origin=origin,
+            _origin_t=tuple(origin.tolist()),
+            _cell=cell,
+            _inv_cell=1.0 / cell,
+            _rr=r * r,
+            _strides=strides,
+            _shape=shape,
+            _keys=flat,
+            _table=table,
+            _buckets=buckets,
+        )
+
+    @property
+    def num_balls(self) -> int:
+        """Number of r-balls."""
+        return len(self.centers)
+
+    @property
+    def length(self) -> float:
+        """Path length of the guide (distance-to-go of its first ball)."""
+        return float(self.dist_to_go[0])
+
+    def ball_index(self, points: np.ndarray) -> np.ndarray:
+        """``(n,)`` index of the ball realising ``D(x)`` for each point, -1 in no ball."""
+        pts = np.atleast_2d(np.asarray(points, dtype=np.float64))
+        cells = np.floor((pts - self._origin) / self._cell).astype(np.int64)
+        inside = np.all((cells >= 0) & (cells < self._shape), axis=1)
+        flat = np.where(inside, cells @ self._strides, -1)
+        row = np.searchsorted(self._keys, flat)
+        row = np.minimum(row, len(self._keys) - 1)
+        hit = inside & (self._keys[row] == flat)
+        cand = np.where(hit[:, None], self._table[row], -1)
+        diff = self.centers[np.maximum(cand, 0)] - pts[:, None, :]
+        ok = (cand >= 0) & (np.einsum("nkd,nkd->nk", diff, diff) <= self._rr)
+        first = np.argmax(ok, axis=1)
+        return np.where(ok.any(axis=1), cand[np.arange(len(pts)), first], -1)
+
+    def distance_to_go(self, points: np.ndarray) -> np.ndarray:
+        """``(n,)`` progress measure ``D(x)``: least distance-to-go of a ball containing x,
+        ``inf`` outside every ball."""
+        idx = self.ball_index(points)
+        return np.where(idx >= 0, self.dist_to_go[np.maximum(idx, 0)], np.inf)
+
+    def locate(self, point: np.ndarray | tuple[float, ...] | list[float]) -> int:
+        """Scalar :meth:`ball_index` of one point in pure Python (a few microseconds)."""
+        xs = point.tolist() if isinstance(point, np.ndarray) else point
+        inv = self._inv_cell
+        key = tuple([math.floor((v - o) * inv) for v, o in zip(xs, self._origin_t, strict=False)])
+        bucket = self._buckets.get(key)
+        if bucket is None:
+            return -1
+        rr = self._rr
+        if len(xs) == 2:
+            x0, x1 = xs
+            for i, (c0, c1) in bucket:
+                if (x0 - c0) * (x0 - c0) + (x1 - c1) * (x1 - c1) <= rr:
+                    return i
+            return -1
+        for i, c in bucket:
+            s = 0.0
+            for v, w in zip(xs, c, strict=False):
+                s += (v - w) * (v - w)
+            if s <= rr:
+                return i
+        return -1
+
+
+@dataclass(frozen=True)
+class StepProgress:
+    """Result of one tracker update over a batch: ``improved`` (a new minimum of D was
+    reached), ``index`` (the progress index after the step, -1 before any ball) and ``d``
+    (``D(x_t)`` of the current point, ``inf`` outside the balls)."""
+
+    improved: np.ndarray
+    index: np.ndarray
+    d: np.ndarray
+
+    @property
+    def at_end(self) -> np.ndarray:
+        """The current point lies in the last ball (``D = 0``)."""
+        return self.d == 0.0
+
+
+class ProgressTracker:
+    """Progress index ``i_t`` and ``D_min`` for a batch of ``num_envs`` envs along one guide.
+
+    ``reset`` starts envs afresh (optionally at ball ``k``, for a start-state curriculum);
+    ``update`` consumes the new points and reports which envs made progress.
+    ``update_one`` is the allocation-free scalar path for one env.
+    """
+
+    def __init__(self, guide: Guide, num_envs: int = 1) -> None:
+        self.guide = guide
+        self.num_envs = num_envs
+        self.index = np.full(num_envs, -1, dtype=np.int64)
+        self.d_min = np.full(num_envs, np.inf)
+        self._dist = guide.dist_to_go.tolist()
+
+    def reset(
+        self,
+        envs: np.ndarray | list[int] | int | None = None,
+        start_index: int | np.ndarray | None = None,
+        points: np.ndarray | None = None,
+    ) -> None:
+        """Reset the envs selected by ``envs`` (boolean mask, indices or one index; all when
+        None). With ``start_index`` the progress index is set to that ball (and ``D_min`` to its
+        distance-to-go); with ``points`` (one per selected env) it is set to the ball each point
+        lies in; otherwise to "no ball yet" (-1, ``D_min = inf``)."""
+        sel = np.arange(self.num_envs) if envs is None else np.asarray(envs)
+        if sel.dtype == bool:
+            sel = np.flatnonzero(sel)
+        sel = np.atleast_1d(sel)
+        if start_index is not None:
+            idx = np.broadcast_to(np.asarray(start_index, dtype=np.int64), sel.shape)
+            if np.any((idx < 0) | (idx >= self.guide.num_balls)):
+                raise ValueError("start_index must name a ball of the guide")
+        elif points is not None:
+            idx = self.guide.ball_index(np.asarray(points).reshape(len(sel), -1))
+        else:
+            idx = np.full(sel.shape, -1, dtype=np.int64)
+        self.index[sel] = idx
+        self.d_min[sel] = np.where(idx >= 0, self.guide.dist_to_go[np.maximum(idx, 0)], np.inf)
+
+    def update(self, points: np.ndarray) -> StepProgress:
+        """Consume one point per env ``(num_envs, d)``; a point improves when its ``D`` is
+        strictly below the env's ``D_min`` so far."""
+        idx = self.guide.ball_index(points)
+        d = np.where(idx >= 0, self.guide.dist_to_go[np.maximum(idx, 0)], np.inf)
+        improved = d < self.d_min
+        self.d_min = np.where(improved, d, self.d_min)
+        self.index = np.where(improved, idx, self.index)
+        return StepProgress(improved=improved, index=self.index.copy(), d=d)
+
+    def update_one(
+        self, env: int, point: np.ndarray | tuple[float, ...] | list[float]
+    ) -> tuple[bool, int, float]:
+        """Scalar :meth:`update` of env ``env``: ``(improved, index, d)``."""
+        i = self.guide.locate(point)
+        if i < 0:
+            return False, int(self.index[env]), math.inf
+        d = self._dist[i]
+        if d < self.d_min[env]:
+            self.d_min[env] = d
+            self.index[env] = i
+            return True, i, d
+        return False, int(self.index[env]), d
