@@ -26,6 +26,7 @@ yaw_rate)``.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 from dataclasses import dataclass
@@ -179,6 +180,8 @@ class Racecar(Robot):
         self._s = [0.0] * 6
         self.client: int = pybullet.connect(pybullet.DIRECT)
         """PyBullet client id of this robot's physics server (for cameras)."""
+        if self.client < 0:
+            raise RuntimeError("racecar: could not start a PyBullet DIRECT server")
         try:
             self._build(pybullet_data.getDataPath())
         except BaseException:
@@ -358,3 +361,8 @@ class Racecar(Robot):
             finally:
                 self.client = -1
                 self._ready = False
+
+    def __del__(self) -> None:
+        # A forgotten close() must not leak a physics server for the rest of the process.
+        with contextlib.suppress(Exception):
+            self.close()
