@@ -1,0 +1,131 @@
+"""Sampling and automaton bookkeeping shared by the TL-RRT* trees.
+
+:class:`Stepper` caches automaton successors by (state, label bitmask): the trees ask the same
+question for every neighbour of every sample. :class:`Sampler` draws free points and points of
+regions in batches (one world call per batch instead of per sample) and picks the biased
+sampling target of TL-RRT*: an automaton transition on a shortest path toward the goal states,
+and a point of the region whose label enables it.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Iterable
+
+import numpy as np
+
+from planner.automaton import Buchi
+from planner.guard import Cube
+from planner.product_labels import LabelOracle
+from planner.world import World
+
+
+class Stepper:
+    """Successors of automaton states under bitmask labels, cached."""
+
+    def __init__(self, nba: Buchi, oracle: LabelOracle) -> None:
+        self.nba = nba
+        self.oracle = oracle
+        self._cache: dict[tuple[int, int], tuple[int, ...]] = {}
+
+    def __call__(self, q: int, mask: int) -> tuple[int, ...]:
+        key = (q, mask)
+        got = self._cache.get(key)
+        if got is None:
+            got = tuple(sorted(self.nba.successors(q, self.oracle.label(mask))))
+            self._cache[key] = got
+        return got
+
+
+def distances_to(nba: Buchi, targets: Iterable[int]) -> dict[int, int]:
+    """Fewest automaton edges from each state to one of ``targets`` (0 for the targets);
+    states that cannot reach them are absent."""
+    pred: dict[int, list[int]] = {q: [] for q in range(nba.num_states)}
+    for e in nba.edges:
+        pred[e.target].append(e.source)
+    dist = {q: 0 for q in sorted(set(targets))}
+    queue = deque(dist)
+    while queue:
+        q = queue.popleft()
+        for p in pred[q]:
+            if p not in dist:
+                dist[p] = dist[q] + 1
+                queue.append(p)
+    return dist
+
+
+class Sampler:
+    """Buffered uniform samples of free space and of regions, and cube-satisfying targets."""
+
+    def __init__(
+        self,
+        world: World,
+        oracle: LabelOracle,
+        rng: np.random.Generator,
+        clearance: float,
+        batch: int = 128,
+    ) -> None:
+        self.world = world
+        self.oracle = oracle
+        self.rng = rng
+        self.clearance = clearance
+        self.batch = batch
+        self._free: list[np.ndarray] = []
+        self._region: dict[str, list[np.ndarray]] = {}
+        self.empty_regions: set[str] = set()
+        """Regions in which repeated sampling found no free point."""
+
+    def free(self) -> np.ndarray:
+        """One uniform collision-free point."""
+        if not self._free:
+            self._free = list(self.world.sample_free(self.rng, self.batch, self.clearance))
+        return self._free.pop()
+
+    def in_region(self, label: str) -> np.ndarray | None:
+        """One uniform free point of region ``label``, None if it seems to have none."""
+        buf = self._region.setdefault(label, [])
+        if not buf:
+            if label in self.empty_regions:
+                return None
+            for _ in range(4):
+                buf.extend(self.world.sample_region(label, self.rng, self.batch, self.clearance))
+                if buf:
+                    break
+            else:
+                self.empty_regions.add(label)
+                return None
+        return buf.pop()
+
+    def near(self, center: np.ndarray, radius: float) -> np.ndarray:
+        """A uniform point of the ball around ``center`` (may be in collision)."""
+        d = len(center)
+        v = self.rng.normal(size=d)
+        v /= max(float(np.linalg.norm(v)), 1e-12)
+        return np.asarray(center + v * radius * self.rng.uniform() ** (1.0 / d))
+
+    def satisfying(self, cube: Cube) -> np.ndarray | None:
+        """A free point whose label satisfies ``cube`` (inside a region of its positive part),
+        None when a few tries find none."""
+        pos = sorted(cube.pos & set(self.oracle.names))
+        for _ in range(4):
+            if pos:
+                x = self.in_region(pos[int(self.rng.integers(len(pos)))])
+                if x is None:
+                    return None
+            else:
+                x = self.free()
+            if cube.holds(self.oracle.label(self.oracle.masks(x[None, :])[0])):
+                return x
+        return None
+
+
+def advancing_cubes(nba: Buchi, q: int, dist: dict[int, int]) -> list[Cube]:
+    """The cubes of the edges leaving ``q`` toward a state one step closer to the goal."""
+    here = dist.get(q)
+    if here is None or here == 0:
+        return []
+    cubes: list[Cube] = []
+    for e in nba.out_edges(q):
+        if e.target != q and dist.get(e.target) == here - 1:
+            cubes.extend(e.guard.sorted_cubes())
+    return cubes

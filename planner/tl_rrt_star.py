@@ -1,0 +1,417 @@
+"""TL-RRT*: a lasso plan in the product of the workspace and a Büchi automaton.
+
+After Luo, Kantaros and Zavlanos, "An abstraction-free method for multirobot planning with
+temporal logic tasks" (T-RO 2021). A prefix tree rooted at ``(start, q)`` grows by RRT* in the
+product space (:mod:`planner.product_tree`) until it holds nodes whose automaton state is
+accepting and lies on an automaton cycle. For such a node ``(x*, q*)`` a suffix tree rooted at
+it grows until one of its nodes can step back to ``(x*, q*)``; the lasso is the prefix branch
+followed by that cycle. When ``q*`` loops on the label of ``x*`` (always for a co-safe task,
+whose accepting state loops on ``true``), staying at ``x*`` is the cycle: ``suffix = [x*]``.
+
+Sampling is biased as in the paper: with probability ``bias`` the tree extends, from its
+nearest node in the automaton state closest to the goal, toward a point of the region whose
+label enables the next transition on a shortest automaton path to the goal (acceptance for the
+prefix; the states that step back to ``q*`` for the suffix). Otherwise it extends toward a
+uniform free point from the nearest node of any state.
+
+Anytime: once a first lasso exists the trees keep growing for ``refine_seconds`` CPU seconds
+(RRT* rewiring shortens branches; more accepting nodes and cycles appear) and the cheapest
+lasso ``prefix_weight * prefix + (1 - prefix_weight) * suffix`` is kept; with ``shortcut`` it
+is then shortened by :mod:`planner.shortcut`, which keeps it a valid product run.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from planner.automaton import Buchi
+from planner.errors import PlanningError
+from planner.options import PlannerSpec
+from planner.product_labels import LabelOracle
+from planner.product_tree import ProductTree
+from planner.sampling import Sampler, Stepper, advancing_cubes, distances_to
+from planner.shortcut import LassoRun, polish
+from planner.world import World
+
+
+@dataclass
+class Lasso:
+    """A plan ``prefix · suffix^ω``: ``prefix[0]`` is the start, ``suffix[0] == suffix[-1] ==
+    prefix[-1]``. ``*_states[i]`` is the automaton state after reading the label of waypoint
+    i. ``cost = w * prefix_cost + (1 - w) * suffix_cost`` with ``w = prefix_weight``.
+    ``stats`` holds timings (CPU seconds) and tree sizes for benchmarks."""
+
+    prefix: np.ndarray
+    suffix: np.ndarray
+    prefix_states: list[int]
+    suffix_states: list[int]
+    prefix_cost: float
+    suffix_cost: float
+    cost: float
+    stats: dict[str, float] = field(default_factory=dict)
+
+
+def path_length(points: np.ndarray) -> float:
+    """Euclidean length of a polyline ``(n, d)``."""
+    if len(points) < 2:
+        return 0.0
+    return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+
+
+def default_eta(world: World) -> float:
+    """The default steering step: a twentieth of the workspace diagonal."""
+    return world.diagonal / 20.0
+
+
+class _Growth:
+    """One product tree with its goal (automaton distances) and sampling policy."""
+
+    def __init__(
+        self,
+        tree: ProductTree,
+        nba: Buchi,
+        dist: dict[int, int],
+        sampler: Sampler,
+        bias: float,
+        home: np.ndarray | None = None,
+    ) -> None:
+        self.tree = tree
+        self.nba = nba
+        self.dist = dist
+        self.sampler = sampler
+        self.rng = sampler.rng
+        self.bias = bias
+        self.home = home
+        self.iterations = 0
+        self.goal_nodes: list[int] = []
+
+    def closest_states(self) -> tuple[int, list[int]]:
+        """Least automaton distance to the goal among the tree's states, and those states."""
+        present = [q for q in self.tree.layers if q in self.dist]
+        if not present:
+            return -1, []
+        dmin = min(self.dist[q] for q in present)
+        return dmin, sorted(q for q in present if self.dist[q] == dmin)
+
+    def _target(self) -> tuple[np.ndarray, int | None]:
+        if self.rng.random() >= self.bias:
+            return self.sampler.free(), None
+        dmin, states = self.closest_states()
+        if not states:
+            return self.sampler.free(), None
+        q = states[int(self.rng.integers(len(states)))]
+        if dmin == 0:
+            if self.home is None:
+                return self.sampler.free(), None
+            return self.sampler.near(self.home, self.tree.eta), q
+        cubes = advancing_cubes(self.nba, q, self.dist)
+        if not cubes or self.rng.random() < 0.25:
+            return self.sampler.free(), q
+        x = self.sampler.satisfying(cubes[int(self.rng.integers(len(cubes)))])
+        return (self.sampler.free() if x is None else x), q
+
+    def step(self) -> list[int]:
+        """One biased-or-uniform RRT* iteration; returns the new nodes that reach the goal."""
+        self.iterations += 1
+        target, layer = self._target()
+        new = self.tree.extend(target, layer)
+        hits = [n for n in new if self.dist.get(self.tree.node_q[n]) == 0]
+        self.goal_nodes.extend(hits)
+        return hits
+
+
+class _Suffix(_Growth):
+    """Suffix tree rooted at prefix node ``(x*, q*)``; goal: nodes that step back to it."""
+
+    def __init__(
+        self, growth: _Growth, prefix_node: int, stepper: Stepper, sampler: Sampler, bias: float
+    ) -> None:
+        prefix = growth.tree
+        self.prefix_node = prefix_node
+        self.q_star = prefix.node_q[prefix_node]
+        pid = prefix.node_pt[prefix_node]
+        self.x_star = prefix.pos[pid].copy()
+        self.mask_star = prefix.mask[pid]
+        nba = growth.nba
+        closing = [q for q in range(nba.num_states) if self.q_star in stepper(q, self.mask_star)]
+        tree = ProductTree(
+            prefix.world, prefix.oracle, stepper, prefix.clearance, prefix.eta, prefix.gamma
+        )
+        root_pid = tree.add_point(self.x_star, self.mask_star)
+        tree.add_node(root_pid, self.q_star, -1, 0.0)
+        super().__init__(tree, nba, distances_to(nba, closing), sampler, bias, self.x_star)
+        self.closers: list[tuple[int, float]] = []
+
+    def step(self) -> list[int]:
+        hits = super().step()
+        if hits:
+            pid = self.tree.node_pt[hits[0]]
+            x = self.tree.pos[pid]
+            if self.tree.edges_ok(x[None, :], self.x_star[None, :])[0]:
+                length = float(np.linalg.norm(x - self.x_star))
+                self.closers.extend((n, length) for n in hits)
+        return hits
+
+    def best_cycle(self) -> tuple[int, float] | None:
+        """The closing node with the cheapest cycle and that cycle's length."""
+        if not self.closers:
+            return None
+        cost = self.tree.cost
+        n, length = min(self.closers, key=lambda c: cost[c[0]] + c[1])
+        return n, cost[n] + length
+
+
+class _Planner:
+    """State of one TL-RRT* run; :meth:`run` returns the lasso or raises PlanningError."""
+
+    def __init__(
+        self,
+        world: World,
+        nba: Buchi,
+        start: np.ndarray,
+        clearance: float,
+        options: PlannerSpec,
+        rng: np.random.Generator,
+    ) -> None:
+        self.t0 = time.process_time()
+        self.world, self.nba, self.options = world, nba, options
+        self.clearance = clearance
+        self.start = np.asarray(start, dtype=float).reshape(-1)
+        self.w = options.prefix_weight
+        self.acc_dist = nba.distances_to_acceptance()
+        if nba.initial not in self.acc_dist:
+            raise PlanningError(
+                "the task is unsatisfiable in this world: the (pruned) automaton has no "
+                "accepting run, so no path can satisfy the formula"
+            )
+        if len(self.start) != world.dim:
+            raise PlanningError(f"the start {self.start.tolist()} is not a {world.dim}D point")
+        if world.in_collision(self.start[None, :], clearance)[0]:
+            raise PlanningError(
+                f"the start {self.start.tolist()} is in collision (clearance {clearance})"
+            )
+        self.eta = options.eta if options.eta is not None else default_eta(world)
+        self.oracle = LabelOracle(world, nba.atoms)
+        self.stepper = Stepper(nba, self.oracle)
+        self.sampler = Sampler(world, self.oracle, rng, clearance)
+        d = world.dim
+        unit_ball = math.pi ** (d / 2) / math.gamma(d / 2 + 1)
+        gamma = 2.0 * (1.0 + 1.0 / d) ** (1.0 / d) * (world.volume / unit_ball) ** (1.0 / d)
+        tree = ProductTree(world, self.oracle, self.stepper, clearance, self.eta, gamma)
+        mask = self.oracle.masks(self.start[None, :])[0]
+        roots = [q for q in self.stepper(nba.initial, mask) if q in self.acc_dist]
+        if not roots:
+            label = sorted(self.oracle.label(mask))
+            raise PlanningError(
+                f"the task is already violated at the start: its label {label} leaves the "
+                "automaton no accepting continuation"
+            )
+        pid = tree.add_point(self.start, mask)
+        for q in roots:
+            tree.add_node(pid, q, -1, 0.0)
+        self.prefix = _Growth(tree, nba, self.acc_dist, self.sampler, options.bias)
+        self.prefix.goal_nodes.extend(
+            n for n in range(tree.num_nodes) if self.acc_dist[tree.node_q[n]] == 0
+        )
+        self.suffixes: list[_Suffix] = []
+        self.trivial: list[int] = []
+        self._tried = 0
+
+    def elapsed(self) -> float:
+        return time.process_time() - self.t0
+
+    # ----------------------------------------------------------------------------- search
+    def _consider_candidates(self, limit: int) -> None:
+        """Give new accepting prefix nodes a trivial cycle or (up to ``limit``) a suffix tree."""
+        goal = self.prefix.goal_nodes
+        tree = self.prefix.tree
+        while self._tried < len(goal):
+            nid = goal[self._tried]
+            self._tried += 1
+            q, pid = tree.node_q[nid], tree.node_pt[nid]
+            if q in self.stepper(q, tree.mask[pid]):
+                self.trivial.append(nid)
+                continue
+            if len(self.suffixes) >= limit:
+                continue
+            x = tree.pos[pid]
+            spread = 2.0 * self.eta
+            if any(np.linalg.norm(s.x_star - x) < spread for s in self.suffixes):
+                continue
+            self.suffixes.append(
+                _Suffix(self.prefix, nid, self.stepper, self.sampler, self.options.bias)
+            )
+
+    def _grow_prefix(self, n: int) -> None:
+        for _ in range(n):
+            if self.prefix.iterations >= self.options.max_iterations:
+                return
+            self.prefix.step()
+
+    def _grow_suffixes(self, n: int, deadline: float) -> None:
+        for s in self.suffixes:
+            for _ in range(n):
+                if s.iterations >= self.options.max_iterations or self.elapsed() > deadline:
+                    break
+                s.step()
+
+    def first_lasso(self) -> Lasso:
+        """Grow until a first lasso exists; PlanningError with the reason when out of budget."""
+        limit = self.options.time_limit
+        while True:
+            self._consider_candidates(limit=4)
+            found = self.best_lassos(1)
+            if found:
+                return found[0]
+            exhausted = self.prefix.iterations >= self.options.max_iterations and all(
+                s.iterations >= self.options.max_iterations for s in self.suffixes
+            )
+            if self.elapsed() > limit or exhausted:
+                raise PlanningError(self._failure_reason())
+            if self.suffixes:
+                self._grow_suffixes(100, limit)
+                self._grow_prefix(10)
+            else:
+                self._grow_prefix(20)
+
+    def refine(self, seconds: float) -> None:
+        """Anytime phase: grow the prefix and the suffix trees for ``seconds`` CPU seconds."""
+        deadline = self.elapsed() + seconds
+        while self.elapsed() < deadline:
+            self._grow_prefix(30)
+            self._consider_candidates(limit=4)
+            self._grow_suffixes(30, deadline)
+
+    def best_lassos(self, k: int) -> list[Lasso]:
+        """The ``k`` cheapest lassos available from the current trees."""
+        tree = self.prefix.tree
+        options: list[tuple[float, int, _Suffix | None]] = []
+        if self.trivial:
+            nid = min(self.trivial, key=lambda n: tree.cost[n])
+            options.append((self.w * tree.cost[nid], nid, None))
+        for s in self.suffixes:
+            cyc = s.best_cycle()
+            if cyc is not None:
+                cost = self.w * tree.cost[s.prefix_node] + (1 - self.w) * cyc[1]
+                options.append((cost, s.prefix_node, s))
+        options.sort(key=lambda o: o[0])
+        return [self._assemble(nid, s) for _, nid, s in options[:k]]
+
+    def _assemble(self, nid: int, suffix: _Suffix | None) -> Lasso:
+        pre, pre_q = self.prefix.tree.branch(nid)
+        if suffix is None:
+            suf, suf_q = pre[-1:].copy(), [pre_q[-1]]
+        else:
+            cyc = suffix.best_cycle()
+            assert cyc is not None
+            suf, suf_q = suffix.tree.branch(cyc[0])
+            suf = np.vstack([suf, pre[-1:]])
+            suf_q = [*suf_q, pre_q[-1]]
+        return make_lasso(pre, suf, pre_q, suf_q, self.w)
+
+    def _failure_reason(self) -> str:
+        budget = (
+            f"after {self.prefix.iterations} prefix iterations and {self.elapsed():.1f} CPU s "
+            "(raise planner.max_iterations / planner.time_limit if the world is large)"
+        )
+        if not self.prefix.goal_nodes:
+            return "no accepting state reached " + budget + ": " + self._stuck(self.prefix)
+        reasons = sorted({self._stuck(s) for s in self.suffixes})
+        return (
+            "an accepting state was reached but no cycle back to it was closed "
+            + budget
+            + ": "
+            + "; ".join(reasons)
+        )
+
+    def _stuck(self, growth: _Growth) -> str:
+        """Why ``growth`` did not reach its goal: the regions it needed but never entered."""
+        _, states = growth.closest_states()
+        needed: set[str] = set()
+        for q in states:
+            for cube in advancing_cubes(self.nba, q, growth.dist):
+                needed |= cube.pos
+        names = self.oracle.names
+        never = sorted(
+            n for n in needed if n in names and not (growth.tree.entered >> names.index(n)) & 1
+        )
+        if never:
+            empty = sorted(set(never) & self.sampler.empty_regions)
+            what = ", ".join(f"region {n}" for n in never)
+            note = f" ({', '.join(empty)} has no free point)" if empty else ""
+            return f"{what} was never entered{note}; it may be enclosed by obstacles"
+        where = ", ".join(self.nba.state_names[q] for q in states) or "?"
+        return (
+            f"the automaton never advanced past state(s) {where}: the labels that advance it "
+            "were reached but not by a collision-free path with at most one label change per "
+            "edge"
+        )
+
+    # ------------------------------------------------------------------------------- run
+    def run(self) -> Lasso:
+        first = self.first_lasso()
+        t_first = self.elapsed()
+        if self.options.refine_seconds > 0:
+            self.refine(self.options.refine_seconds)
+        candidates = self.best_lassos(3)
+        best = candidates[0]
+        if self.options.shortcut:
+            polished = [self._polish(c) for c in candidates]
+            best = min(polished, key=lambda c: c.cost)
+        best.stats = {
+            "first_seconds": t_first,
+            "first_cost": first.cost,
+            "seconds": self.elapsed(),
+            "prefix_iterations": float(self.prefix.iterations),
+            "suffix_iterations": float(sum(s.iterations for s in self.suffixes)),
+            "prefix_nodes": float(self.prefix.tree.num_nodes),
+        }
+        return best
+
+    def _polish(self, lasso: Lasso) -> Lasso:
+        run = LassoRun(lasso.prefix, lasso.suffix, lasso.prefix_states, lasso.suffix_states, self.w)
+        out = polish(run, self.world, self.oracle, self.stepper, self.clearance, self.eta)
+        return make_lasso(out.prefix, out.suffix, out.prefix_states, out.suffix_states, self.w)
+
+
+def make_lasso(
+    prefix: np.ndarray,
+    suffix: np.ndarray,
+    prefix_states: list[int],
+    suffix_states: list[int],
+    prefix_weight: float,
+) -> Lasso:
+    """A :class:`Lasso` with its costs computed from the geometry."""
+    pc, sc = path_length(prefix), path_length(suffix)
+    return Lasso(
+        prefix=prefix,
+        suffix=suffix,
+        prefix_states=list(prefix_states),
+        suffix_states=list(suffix_states),
+        prefix_cost=pc,
+        suffix_cost=sc,
+        cost=prefix_weight * pc + (1.0 - prefix_weight) * sc,
+    )
+
+
+def plan_lasso(
+    world: World,
+    nba: Buchi,
+    start: np.ndarray,
+    clearance: float,
+    options: PlannerSpec,
+    rng: np.random.Generator | None = None,
+) -> Lasso:
+    """TL-RRT* lasso for the (pruned) automaton ``nba`` from ``start`` in ``world``.
+
+    ``rng`` defaults to ``numpy.random.default_rng(options.seed)``. Raises PlanningError when
+    the automaton has no accepting run, or when ``max_iterations`` / ``time_limit`` run out
+    without a lasso (the message names the regions never reached). With ``refine_seconds > 0``
+    the result depends on CPU speed; with ``refine_seconds = 0`` it is deterministic per seed.
+    """
+    gen = rng if rng is not None else np.random.default_rng(options.seed)
+    return _Planner(world, nba, start, clearance, options, gen).run()
