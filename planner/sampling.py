@@ -37,21 +37,67 @@ class Stepper:
         return got
 
 
-def distances_to(nba: Buchi, targets: Iterable[int]) -> dict[int, int]:
-    """Fewest automaton edges from each state to one of ``targets`` (0 for the targets);
-    states that cannot reach them are absent."""
-    pred: dict[int, list[int]] = {q: [] for q in range(nba.num_states)}
-    for e in nba.edges:
-        pred[e.target].append(e.source)
-    dist = {q: 0 for q in sorted(set(targets))}
-    queue = deque(dist)
-    while queue:
-        q = queue.popleft()
-        for p in pred[q]:
-            if p not in dist:
-                dist[p] = dist[q] + 1
-                queue.append(p)
-    return dist
+class Realisable:
+    """The cubes of an automaton that some free point of the world can produce.
+
+    TL-RRT* steers toward and measures distances through these only, so that an unpruned
+    automaton (whose cheapest path may need two disjoint regions at once) does not mislead the
+    biased sampling.
+    """
+
+    def __init__(self, nba: Buchi, world: World, clearance: float) -> None:
+        self.nba = nba
+        self.cubes: dict[tuple[int, int], list[Cube]] = {}
+        for e in nba.edges:
+            ok = [c for c in e.guard.sorted_cubes() if world.realisable(c.pos, c.neg, clearance)]
+            if ok:
+                self.cubes[(e.source, e.target)] = ok
+        self.succ: dict[int, list[int]] = {q: [] for q in range(nba.num_states)}
+        self.pred: dict[int, list[int]] = {q: [] for q in range(nba.num_states)}
+        for src, dst in self.cubes:
+            self.succ[src].append(dst)
+            self.pred[dst].append(src)
+
+    def distances_to(self, targets: Iterable[int]) -> dict[int, int]:
+        """Fewest realisable edges from each state to one of ``targets`` (0 for the targets);
+        states that cannot reach them are absent."""
+        dist = {q: 0 for q in sorted(set(targets))}
+        queue = deque(dist)
+        while queue:
+            q = queue.popleft()
+            for p in self.pred[q]:
+                if p not in dist:
+                    dist[p] = dist[q] + 1
+                    queue.append(p)
+        return dist
+
+    def on_cycle(self, q: int) -> bool:
+        """Whether ``q`` can return to itself through realisable edges."""
+        seen: set[int] = set()
+        stack = list(self.succ[q])
+        while stack:
+            p = stack.pop()
+            if p == q:
+                return True
+            if p not in seen:
+                seen.add(p)
+                stack.extend(self.succ[p])
+        return False
+
+    def acceptance_distances(self) -> dict[int, int]:
+        """:meth:`Buchi.distances_to_acceptance` restricted to realisable edges."""
+        return self.distances_to(q for q in self.nba.accepting if self.on_cycle(q))
+
+    def advancing_cubes(self, q: int, dist: dict[int, int]) -> list[Cube]:
+        """The realisable cubes of the edges leaving ``q`` toward a state one step closer."""
+        here = dist.get(q)
+        if here is None or here == 0:
+            return []
+        out: list[Cube] = []
+        for dst in self.succ[q]:
+            if dst != q and dist.get(dst) == here - 1:
+                out.extend(self.cubes[(q, dst)])
+        return out
 
 
 class Sampler:
@@ -117,15 +163,3 @@ class Sampler:
             if cube.holds(self.oracle.label(self.oracle.masks(x[None, :])[0])):
                 return x
         return None
-
-
-def advancing_cubes(nba: Buchi, q: int, dist: dict[int, int]) -> list[Cube]:
-    """The cubes of the edges leaving ``q`` toward a state one step closer to the goal."""
-    here = dist.get(q)
-    if here is None or here == 0:
-        return []
-    cubes: list[Cube] = []
-    for e in nba.out_edges(q):
-        if e.target != q and dist.get(e.target) == here - 1:
-            cubes.extend(e.guard.sorted_cubes())
-    return cubes

@@ -33,7 +33,7 @@ from planner.errors import PlanningError
 from planner.options import PlannerSpec
 from planner.product_labels import LabelOracle
 from planner.product_tree import ProductTree
-from planner.sampling import Sampler, Stepper, advancing_cubes, distances_to
+from planner.sampling import Realisable, Sampler, Stepper
 from planner.shortcut import LassoRun, polish
 from planner.world import World
 
@@ -73,14 +73,14 @@ class _Growth:
     def __init__(
         self,
         tree: ProductTree,
-        nba: Buchi,
+        paths: Realisable,
         dist: dict[int, int],
         sampler: Sampler,
         bias: float,
         home: np.ndarray | None = None,
     ) -> None:
         self.tree = tree
-        self.nba = nba
+        self.paths = paths
         self.dist = dist
         self.sampler = sampler
         self.rng = sampler.rng
@@ -108,7 +108,7 @@ class _Growth:
             if self.home is None:
                 return self.sampler.free(), None
             return self.sampler.near(self.home, self.tree.eta), q
-        cubes = advancing_cubes(self.nba, q, self.dist)
+        cubes = self.paths.advancing_cubes(q, self.dist)
         if not cubes or self.rng.random() < 0.25:
             return self.sampler.free(), q
         x = self.sampler.satisfying(cubes[int(self.rng.integers(len(cubes)))])
@@ -136,14 +136,15 @@ class _Suffix(_Growth):
         pid = prefix.node_pt[prefix_node]
         self.x_star = prefix.pos[pid].copy()
         self.mask_star = prefix.mask[pid]
-        nba = growth.nba
-        closing = [q for q in range(nba.num_states) if self.q_star in stepper(q, self.mask_star)]
+        paths = growth.paths
+        n = paths.nba.num_states
+        closing = [q for q in range(n) if self.q_star in stepper(q, self.mask_star)]
         tree = ProductTree(
             prefix.world, prefix.oracle, stepper, prefix.clearance, prefix.eta, prefix.gamma
         )
         root_pid = tree.add_point(self.x_star, self.mask_star)
         tree.add_node(root_pid, self.q_star, -1, 0.0)
-        super().__init__(tree, nba, distances_to(nba, closing), sampler, bias, self.x_star)
+        super().__init__(tree, paths, paths.distances_to(closing), sampler, bias, self.x_star)
         self.closers: list[tuple[int, float]] = []
 
     def step(self) -> list[int]:
@@ -182,7 +183,8 @@ class _Planner:
         self.clearance = clearance
         self.start = np.asarray(start, dtype=float).reshape(-1)
         self.w = options.prefix_weight
-        self.acc_dist = nba.distances_to_acceptance()
+        self.paths = Realisable(nba, world, clearance)
+        self.acc_dist = self.paths.acceptance_distances()
         if nba.initial not in self.acc_dist:
             raise PlanningError(
                 "the task is unsatisfiable in this world: the (pruned) automaton has no "
@@ -213,7 +215,7 @@ class _Planner:
         pid = tree.add_point(self.start, mask)
         for q in roots:
             tree.add_node(pid, q, -1, 0.0)
-        self.prefix = _Growth(tree, nba, self.acc_dist, self.sampler, options.bias)
+        self.prefix = _Growth(tree, self.paths, self.acc_dist, self.sampler, options.bias)
         self.prefix.goal_nodes.extend(
             n for n in range(tree.num_nodes) if self.acc_dist[tree.node_q[n]] == 0
         )
@@ -246,18 +248,21 @@ class _Planner:
                 _Suffix(self.prefix, nid, self.stepper, self.sampler, self.options.bias)
             )
 
-    def _grow_prefix(self, n: int) -> None:
+    def _grow_prefix(self, n: int, until_goal: bool = False) -> None:
         for _ in range(n):
             if self.prefix.iterations >= self.options.max_iterations:
                 return
-            self.prefix.step()
+            if self.prefix.step() and until_goal:
+                return
 
-    def _grow_suffixes(self, n: int, deadline: float) -> None:
+    def _grow_suffixes(self, n: int, deadline: float, until_closed: bool = False) -> None:
         for s in self.suffixes:
             for _ in range(n):
                 if s.iterations >= self.options.max_iterations or self.elapsed() > deadline:
                     break
                 s.step()
+                if until_closed and s.closers:
+                    return
 
     def first_lasso(self) -> Lasso:
         """Grow until a first lasso exists; PlanningError with the reason when out of budget."""
@@ -273,10 +278,11 @@ class _Planner:
             if self.elapsed() > limit or exhausted:
                 raise PlanningError(self._failure_reason())
             if self.suffixes:
-                self._grow_suffixes(100, limit)
-                self._grow_prefix(10)
+                self._grow_suffixes(100, limit, until_closed=True)
+                if not any(s.closers for s in self.suffixes):
+                    self._grow_prefix(10)
             else:
-                self._grow_prefix(20)
+                self._grow_prefix(20, until_goal=True)
 
     def refine(self, seconds: float) -> None:
         """Anytime phase: grow the prefix and the suffix trees for ``seconds`` CPU seconds."""
@@ -333,7 +339,7 @@ class _Planner:
         _, states = growth.closest_states()
         needed: set[str] = set()
         for q in states:
-            for cube in advancing_cubes(self.nba, q, growth.dist):
+            for cube in self.paths.advancing_cubes(q, growth.dist):
                 needed |= cube.pos
         names = self.oracle.names
         never = sorted(
