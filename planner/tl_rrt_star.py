@@ -186,10 +186,15 @@ class _Planner:
         self.paths = Realisable(nba, world, clearance)
         self.acc_dist = self.paths.acceptance_distances()
         if nba.initial not in self.acc_dist:
-            raise PlanningError(
-                "the task is unsatisfiable in this world: the (pruned) automaton has no "
-                "accepting run, so no path can satisfy the formula"
-            )
+            if nba.initial not in nba.distances_to_acceptance():
+                why = "its automaton has no accepting run (the formula is a contradiction)"
+            else:
+                why = (
+                    "every accepting run of its automaton needs labels that no collision-free "
+                    "point of this world carries together (e.g. two disjoint regions at once, "
+                    "being inside an obstacle, or a region the robot cannot fit in)"
+                )
+            raise PlanningError(f"the task is unsatisfiable in this world: {why}")
         if len(self.start) != world.dim:
             raise PlanningError(f"the start {self.start.tolist()} is not a {world.dim}D point")
         if world.in_collision(self.start[None, :], clearance)[0]:
@@ -361,7 +366,7 @@ class _Planner:
     def run(self) -> Lasso:
         first = self.first_lasso()
         t_first = self.elapsed()
-        if self.options.refine_seconds > 0:
+        if self.options.refine_seconds > 0 and first.cost > 0:
             self.refine(self.options.refine_seconds)
         candidates = self.best_lassos(3)
         best = candidates[0]

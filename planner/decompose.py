@@ -1,0 +1,146 @@
+"""Cut a lasso into reach-avoid sub-tasks, one per automaton-constant piece.
+
+The lasso is cut at every waypoint where the automaton state changes and at the end of each
+phase. A piece runs from the previous cut point to the next one; its goal is the region whose
+entry made the automaton move:
+
+* the candidate labels are the positive literals of the cubes of the transition
+  ``q -> q'`` that hold at the cut point; among them a region *entered* there (absent at the
+  previous waypoint) wins, then any region containing the cut point (sorted by name, so the
+  choice is deterministic when one label set holds several regions);
+* a piece that ends the phase without a state change (the prefix may run on inside the
+  accepting state) gets the region containing its end point, preferring one just entered;
+* a transition taken on *leaving* a region (a guard with negative literals only) has no region
+  to reach: its piece is merged into the following piece of the same phase, whose goal then
+  applies. Only when such a piece ends its phase does it keep the empty goal ``""``, meaning
+  "reach the end of the guide path" (the cut point); every other sub-task path ends inside its
+  goal region.
+
+Zero-length pieces are merged into their successor. Prefix sub-tasks come first, then suffix
+sub-tasks; the suffix starts at the accepting state and point where the prefix ended.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from planner.automaton import Buchi
+from planner.tl_rrt_star import Lasso
+from planner.world import World
+
+Phase = Literal["prefix", "suffix"]
+
+
+@dataclass
+class SubTask:
+    """Reach region ``goal`` from ``start`` along the guide ``path`` (``path[0] == start``,
+    ``path[-1]`` in the goal region), never touching obstacles. ``nba_state`` is the
+    automaton state during the piece and ``next_nba_state`` the one entered at its end."""
+
+    index: int
+    phase: Phase
+    goal: str
+    start: np.ndarray
+    path: np.ndarray
+    nba_state: int
+    next_nba_state: int
+
+
+@dataclass
+class _Piece:
+    lo: int
+    hi: int
+    goal: str
+    q_from: int
+    q_to: int
+
+
+def _regions(world: World, x: np.ndarray) -> frozenset[str]:
+    return world.labels(x) - {World.OBSTACLE}
+
+
+def _goal(
+    nba: Buchi,
+    here: frozenset[str],
+    before: frozenset[str],
+    q_from: int,
+    q_to: int,
+) -> str:
+    entered = here - before
+    enabling: set[str] = set()
+    if q_from != q_to:
+        for edge in nba.out_edges(q_from):
+            if edge.target == q_to:
+                for cube in edge.guard.sorted_cubes():
+                    if cube.holds(here):
+                        enabling |= cube.pos
+        for pool in (enabling & entered, enabling & here):
+            if pool:
+                return sorted(pool)[0]
+        if not enabling:
+            # A transition taken on leaving a region: no region to reach here.
+            return ""
+    for region_pool in (entered, here):
+        if region_pool:
+            return sorted(region_pool)[0]
+    return ""
+
+
+def _pieces(nba: Buchi, world: World, points: np.ndarray, states: list[int]) -> list[_Piece]:
+    n = len(points) - 1
+    if n < 1:
+        return []
+    labels = [_regions(world, x) for x in points]
+    cuts = [k for k in range(1, n + 1) if states[k] != states[k - 1] or k == n]
+    pieces: list[_Piece] = []
+    lo = 0
+    for k in cuts:
+        q_from, q_to = states[lo], states[k]
+        goal = _goal(nba, labels[k], labels[k - 1], states[k - 1], q_to)
+        pieces.append(_Piece(lo, k, goal, q_from, q_to))
+        lo = k
+    merged: list[_Piece] = []
+    carry: _Piece | None = None
+    for i, piece in enumerate(pieces):
+        if carry is not None:
+            piece = _Piece(carry.lo, piece.hi, piece.goal, carry.q_from, piece.q_to)
+            carry = None
+        degenerate = not np.any(points[piece.lo + 1 : piece.hi + 1] != points[piece.lo])
+        if (piece.goal == "" or degenerate) and i < len(pieces) - 1:
+            carry = piece
+            continue
+        if degenerate and merged:
+            last = merged[-1]
+            merged[-1] = _Piece(last.lo, piece.hi, last.goal, last.q_from, piece.q_to)
+            continue
+        if not degenerate:
+            merged.append(piece)
+    return merged
+
+
+def decompose(lasso: Lasso, nba: Buchi, world: World) -> list[SubTask]:
+    """Sub-tasks of ``lasso`` (see the module docstring); ``nba`` is the automaton whose
+    states ``lasso.*_states`` refer to (the pruned one TL-RRT* planned with)."""
+    out: list[SubTask] = []
+    phases: tuple[tuple[Phase, np.ndarray, list[int]], ...] = (
+        ("prefix", lasso.prefix, lasso.prefix_states),
+        ("suffix", lasso.suffix, lasso.suffix_states),
+    )
+    for phase, points, states in phases:
+        for piece in _pieces(nba, world, np.asarray(points, dtype=float), states):
+            path = np.array(points[piece.lo : piece.hi + 1], dtype=float)
+            out.append(
+                SubTask(
+                    index=len(out),
+                    phase=phase,
+                    goal=piece.goal,
+                    start=path[0].copy(),
+                    path=path,
+                    nba_state=piece.q_from,
+                    next_nba_state=piece.q_to,
+                )
+            )
+    return out

@@ -1,0 +1,238 @@
+"""From a world and an LTL task to a verified lasso plan cut into sub-tasks.
+
+:func:`plan_mission` runs the whole planner pipeline: parse and check the formula, translate it
+to a Büchi automaton, prune the transitions this world can never produce, plan a lasso with
+TL-RRT* and decompose it. :func:`verify_plan` re-checks, independently of the planner's own
+bookkeeping, every invariant the plan promises (issue section 6); an empty list means valid.
+Times are CPU seconds (``time.process_time``): the machine is shared and wall time is noisy.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from planner.automaton import Buchi
+from planner.decompose import SubTask, decompose
+from planner.errors import PlanningError
+from planner.guard import Cube
+from planner.ltl import check_mission_formula, parse
+from planner.ltl_semantics import holds_on_lasso
+from planner.options import PlannerSpec
+from planner.prune import has_accepting_run, prune
+from planner.tl_rrt_star import Lasso, default_eta, plan_lasso
+from planner.world import World
+
+
+@dataclass
+class MissionPlan:
+    """A planned mission: the automata, the lasso, its sub-tasks and how long it took.
+
+    ``nba`` is the automaton of the formula, ``pruned`` the one TL-RRT* planned in (the lasso's
+    and sub-tasks' automaton states refer to it). ``r_ball`` is the radius of the sub-tasks'
+    guide balls and ``eta`` the steering step used. ``seconds`` covers the whole pipeline,
+    ``translation_seconds`` parsing, translation and pruning.
+    """
+
+    formula: str
+    start: np.ndarray
+    nba: Buchi
+    pruned: Buchi
+    lasso: Lasso
+    subtasks: list[SubTask]
+    eta: float
+    r_ball: float
+    seconds: float
+    translation_seconds: float
+
+    def to_json(self) -> dict[str, Any]:
+        """The plan document of the ``ltlnav plan --json`` output (issue section 6)."""
+        return {
+            "formula": self.formula,
+            "automaton": {
+                "states": self.pruned.num_states,
+                "transitions": self.pruned.num_transitions,
+                "unpruned": {
+                    "states": self.nba.num_states,
+                    "transitions": self.nba.num_transitions,
+                },
+            },
+            "prefix": self.lasso.prefix.tolist(),
+            "suffix": self.lasso.suffix.tolist(),
+            "cost": self.lasso.cost,
+            "prefix_cost": self.lasso.prefix_cost,
+            "suffix_cost": self.lasso.suffix_cost,
+            "subtasks": [
+                {
+                    "index": s.index,
+                    "phase": s.phase,
+                    "goal": s.goal,
+                    "path": s.path.tolist(),
+                    "r_ball": self.r_ball,
+                }
+                for s in self.subtasks
+            ],
+            "seconds": self.seconds,
+        }
+
+
+def translate_task(task: str, world: World, clearance: float) -> tuple[Buchi, Buchi]:
+    """The automaton of ``task`` and its pruning for ``world`` (FormulaError on bad input,
+    PlanningError when no accepting run survives pruning)."""
+    from planner.translate import translate
+
+    formula = parse(task)
+    check_mission_formula(formula, task)
+    nba = translate(formula)
+
+    def realisable(cube: Cube) -> bool:
+        return world.realisable(cube.pos, cube.neg, clearance)
+
+    pruned = prune(nba, realisable)
+    if not has_accepting_run(pruned):
+        if not has_accepting_run(nba):
+            why = "the formula itself has no satisfying behaviour (it is a contradiction)"
+        else:
+            why = (
+                "every accepting run of its automaton needs labels that no collision-free "
+                "point of this world carries together (e.g. two disjoint regions at once, "
+                "being inside an obstacle, or a region the robot cannot fit in)"
+            )
+        raise PlanningError(f"the task is unsatisfiable in this world: {why}")
+    return nba, pruned
+
+
+def plan_mission(
+    world: World,
+    task: str,
+    start: np.ndarray,
+    clearance: float,
+    options: PlannerSpec | None = None,
+) -> MissionPlan:
+    """Plan ``task`` (LTL text) in ``world`` for a robot of radius ``clearance`` at ``start``.
+
+    Raises FormulaError for a bad formula and PlanningError when no plan exists or none was
+    found within the budget (the message says which).
+    """
+    opts = options if options is not None else PlannerSpec()
+    t0 = time.process_time()
+    nba, pruned = translate_task(task, world, clearance)
+    t_translate = time.process_time() - t0
+    rng = np.random.default_rng(opts.seed)
+    lasso = plan_lasso(world, pruned, np.asarray(start, dtype=float), clearance, opts, rng)
+    subtasks = decompose(lasso, pruned, world)
+    eta = opts.eta if opts.eta is not None else default_eta(world)
+    return MissionPlan(
+        formula=task,
+        start=np.asarray(start, dtype=float).copy(),
+        nba=nba,
+        pruned=pruned,
+        lasso=lasso,
+        subtasks=subtasks,
+        eta=eta,
+        r_ball=opts.r_ball if opts.r_ball is not None else eta / 2.0,
+        seconds=time.process_time() - t0,
+        translation_seconds=t_translate,
+    )
+
+
+# ------------------------------------------------------------------------------ verification
+def _dense_labels(
+    world: World, points: np.ndarray, resolution: float, problems: list[str], what: str
+) -> list[frozenset[str]]:
+    """Labels met along the polyline, sampled every ``resolution`` at least and refined where
+    the samples show fewer label changes than the world's exact count; stutters removed."""
+    names = world.region_names
+    word: list[frozenset[str]] = [world.labels(points[0])]
+    for k in range(1, len(points)):
+        a, b = points[k - 1], points[k]
+        exact = world.segment_label_changes(a, b)
+        n = max(2, int(np.ceil(np.linalg.norm(b - a) / resolution)) + 1)
+        for _ in range(3):
+            t = np.linspace(0.0, 1.0, n)[:, None]
+            pts = a + t * (b - a)
+            member = world.label_matrix(pts)
+            inside = world.in_collision(pts, 0.0)
+            rows = np.concatenate([member, inside[:, None]], axis=1)
+            if int(np.any(rows[1:] != rows[:-1], axis=1).sum()) >= exact:
+                break
+            n = min(n * 8, 200_000)
+        else:
+            problems.append(
+                f"{what} segment {k - 1}: sampling finds fewer label changes than the world "
+                f"counts ({exact}); it may graze a region boundary"
+            )
+        for row in rows[1:]:
+            label = frozenset(nm for nm, m in zip(names, row[:-1], strict=True) if m)
+            if row[-1]:
+                label |= {World.OBSTACLE}
+            if label != word[-1]:
+                word.append(label)
+    return word
+
+
+def verify_plan(plan: MissionPlan, world: World, clearance: float) -> list[str]:
+    """Every broken invariant of ``plan`` as a sentence; an empty list means valid.
+
+    Checks: the prefix starts at the start position; ``suffix[0] == prefix[-1] ==
+    suffix[-1]``; every waypoint and segment is collision free with ``clearance``; the
+    sub-tasks chain along the lasso and each ends inside its goal region; and the labels met
+    along ``prefix · suffix^ω`` (sampled densely, refined against the world's exact count of
+    label changes) are accepted both by the automaton and by direct LTL evaluation.
+    """
+    problems: list[str] = []
+    pre = np.asarray(plan.lasso.prefix, dtype=float)
+    suf = np.asarray(plan.lasso.suffix, dtype=float)
+    if len(pre) == 0 or len(suf) == 0:
+        return ["the prefix and the suffix must each hold at least one point"]
+    tol = 1e-9
+    if not np.allclose(pre[0], plan.start, atol=tol):
+        problems.append(f"prefix[0] {pre[0].tolist()} is not the start {plan.start.tolist()}")
+    if not (np.allclose(suf[0], pre[-1], atol=tol) and np.allclose(suf[-1], pre[-1], atol=tol)):
+        problems.append("suffix[0], prefix[-1] and suffix[-1] are not the same point")
+    for name, path in (("prefix", pre), ("suffix", suf)):
+        bad = np.flatnonzero(world.in_collision(path, clearance))
+        if bad.size:
+            problems.append(f"{name} waypoint(s) {bad.tolist()} in collision")
+        if len(path) > 1:
+            hit = np.flatnonzero(~world.segments_free(path[:-1], path[1:], clearance))
+            if hit.size:
+                problems.append(f"{name} segment(s) {hit.tolist()} not collision free")
+    problems += _check_subtasks(plan, world, pre, suf)
+    resolution = world.diagonal / 2000.0
+    word = _dense_labels(world, pre, resolution, problems, "prefix")
+    if len(suf) > 1:
+        cycle = _dense_labels(world, suf, resolution, problems, "suffix")[1:]
+    else:
+        cycle = [word[-1]]
+    if not cycle:
+        cycle = [word[-1]]
+    if not plan.nba.accepts_lasso(word, cycle):
+        problems.append("the automaton rejects the label sequence of prefix . suffix^w")
+    if not holds_on_lasso(parse(plan.formula), word, cycle):
+        problems.append("the label sequence of prefix . suffix^w does not satisfy the formula")
+    return problems
+
+
+def _check_subtasks(plan: MissionPlan, world: World, pre: np.ndarray, suf: np.ndarray) -> list[str]:
+    problems: list[str] = []
+    for phase, path in (("prefix", pre), ("suffix", suf)):
+        subs = [s for s in plan.subtasks if s.phase == phase]
+        if len(path) > 1 and np.any(path[1:] != path[0]) and not subs:
+            problems.append(f"the {phase} has no sub-task")
+        if not subs:
+            continue
+        joined = np.vstack([subs[0].path] + [s.path[1:] for s in subs[1:]])
+        if joined.shape != path.shape or not np.allclose(joined, path):
+            problems.append(f"the {phase} sub-task paths do not chain into the {phase}")
+    for i, s in enumerate(plan.subtasks):
+        if s.index != i:
+            problems.append(f"sub-task {i} has index {s.index}")
+        if not np.allclose(s.start, s.path[0]):
+            problems.append(f"sub-task {i} does not start at its path's first point")
+        if s.goal and s.goal not in world.labels(s.path[-1]):
+            problems.append(f"sub-task {i} ends outside its goal region {s.goal}")
+    return problems
