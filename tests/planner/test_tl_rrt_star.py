@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -33,7 +35,7 @@ def world_2d() -> World:
 def word(world: World, points: np.ndarray) -> list[frozenset[str]]:
     """Labels met along a polyline, densely sampled, stutters removed."""
     out = [world.labels(points[0])]
-    for a, b in zip(points[:-1], points[1:], strict=True):
+    for a, b in itertools.pairwise(points):
         pts = a + np.linspace(0.0, 1.0, 400)[1:, None] * (b - a)
         member = world.label_matrix(pts)
         for row in member:
