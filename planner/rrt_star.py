@@ -198,11 +198,13 @@ class RRTStar:
         near = self._index.near(x_new, radius)
         near = np.concatenate([[i_near], near[near != i_near]])
         pts = self._x[near]
-        free = self.world.segments_free(pts, np.broadcast_to(x_new, pts.shape), self.clearance)
+        ends = np.empty_like(pts)
+        ends[:] = x_new
+        free = self.world.segments_free(pts, ends, self.clearance)
         if not free[0]:
             return
-        near, pts = near[free], pts[free]
-        dists = np.linalg.norm(pts - x_new, axis=1)
+        near, diff = near[free], pts[free] - x_new
+        dists = np.sqrt(np.einsum("ij,ij->i", diff, diff))
         through = self._cost[near] + dists
         best = int(through.argmin())
         new = self._add(x_new, int(near[best]), float(through[best]))

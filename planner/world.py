@@ -33,6 +33,7 @@ from planner.shapes import (
 
 IntArray = NDArray[np.int_]
 _LABEL = re.compile(r"[a-z_][a-z0-9_]*\Z")
+_CHUNK = 1024  # points or segments per vectorised pass: keeps temporaries in cache
 
 
 class _ShapeSet:
@@ -52,21 +53,48 @@ class _ShapeSet:
         self.balls = [s for _, s in balls]
         self.polygons = [(i, s) for i, s in enumerate(shapes) if isinstance(s, Polygon)]
 
+    def _box_sqdist(self, p: FloatArray) -> FloatArray:
+        """(n, boxes) squared distances, one axis at a time to keep temporaries (n, boxes)."""
+        total = np.zeros((len(p), len(self.box_lo)))
+        for j in range(p.shape[1]):
+            x = p[:, j, None]
+            gap = np.maximum(np.maximum(self.box_lo[:, j] - x, x - self.box_hi[:, j]), 0.0)
+            total += gap * gap
+        return total
+
+    def _ball_sqdist(self, p: FloatArray) -> FloatArray:
+        """(n, balls) squared distances to the ball centres."""
+        total = np.zeros((len(p), len(self.ball_c)))
+        for j in range(p.shape[1]):
+            diff = p[:, j, None] - self.ball_c[:, j]
+            total += diff * diff
+        return total
+
     def contains(self, p: FloatArray, margin: float) -> BoolArray:
         """(n, k) membership of points in every shape inflated by ``margin``."""
         out = np.zeros((len(p), self.size), dtype=bool)
         if self.box_idx.size:
-            d2 = box_sqdist(p[:, None, :], self.box_lo, self.box_hi)
-            out[:, self.box_idx] = d2 <= margin * margin
+            out[:, self.box_idx] = self._box_sqdist(p) <= margin * margin
         if self.ball_idx.size:
-            diff = p[:, None, :] - self.ball_c
-            out[:, self.ball_idx] = (diff * diff).sum(axis=2) <= (self.ball_r + margin) ** 2
+            out[:, self.ball_idx] = self._ball_sqdist(p) <= (self.ball_r + margin) ** 2
         for i, poly in self.polygons:
             out[:, i] = poly.contains(p, margin)
         return out
 
     def any_contains(self, p: FloatArray, margin: float) -> BoolArray:
-        return np.asarray(self.contains(p, margin).any(axis=1))
+        """(n,) whether each point lies in some shape inflated by ``margin`` (chunked)."""
+        if len(p) > _CHUNK:
+            return np.concatenate(
+                [self.any_contains(p[i : i + _CHUNK], margin) for i in range(0, len(p), _CHUNK)]
+            )
+        hit = np.zeros(len(p), dtype=bool)
+        if self.box_idx.size:
+            hit |= np.any(self._box_sqdist(p) <= margin * margin, axis=1)
+        if self.ball_idx.size:
+            hit |= np.any(self._ball_sqdist(p) <= (self.ball_r + margin) ** 2, axis=1)
+        for _, poly in self.polygons:
+            hit |= poly.contains(p, margin)
+        return hit
 
     def any_segment_hits(self, a: FloatArray, b: FloatArray, margin: float) -> BoolArray:
         """(n,) whether each segment comes within ``margin`` of some shape (exact, conservative).
@@ -74,6 +102,13 @@ class _ShapeSet:
         Shapes whose inflated bounding box misses the bounding box of all the segments, then of
         each segment, are skipped before the exact distance test.
         """
+        if len(a) > _CHUNK:
+            return np.concatenate(
+                [
+                    self.any_segment_hits(a[i : i + _CHUNK], b[i : i + _CHUNK], margin)
+                    for i in range(0, len(a), _CHUNK)
+                ]
+            )
         hit = np.zeros(len(a), dtype=bool)
         smin, smax = np.minimum(a, b), np.maximum(a, b)
         reach = margin + SEGMENT_TOL
@@ -82,8 +117,10 @@ class _ShapeSet:
             cand = np.flatnonzero(np.all((self.box_lo <= all_hi) & (self.box_hi >= all_lo), axis=1))
             if cand.size:
                 lo, hi = self.box_lo[cand] - reach, self.box_hi[cand] + reach
-                near = (smin[:, None, :] <= hi) & (smax[:, None, :] >= lo)
-                seg, box = np.nonzero(near.all(axis=2))
+                near = np.ones((len(a), len(cand)), dtype=bool)
+                for j in range(a.shape[1]):
+                    near &= (smin[:, j, None] <= hi[:, j]) & (smax[:, j, None] >= lo[:, j])
+                seg, box = np.nonzero(near)
                 if seg.size:
                     box = cand[box]
                     d2 = segment_box_sqdist(a[seg], b[seg], self.box_lo[box], self.box_hi[box])
