@@ -120,8 +120,11 @@ class LabelOracle:
     def changes(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """(n,) number of times the task label changes along each segment ``a[i]``-``b[i]``.
 
-        The segment is cut wherever it may cross a region boundary; the label is compared at
-        the endpoints and between consecutive cuts.
+        Every proper crossing of a region boundary toggles that region's membership, so the
+        label changes once per distinct crossing parameter: the crossings are computed in
+        closed form (slabs for boxes, roots for balls, edge intersections for polygons) and
+        counted without evaluating a single label. Tangencies and segments running along an
+        edge (sets of measure zero) are ignored.
         """
         a = np.asarray(a, dtype=float).reshape(-1, self.dim)
         b = np.asarray(b, dtype=float).reshape(-1, self.dim)
@@ -138,40 +141,43 @@ class LabelOracle:
         if self._other:
             out[rows] = self.world.segments_label_changes(a[rows], b[rows])
             return out
-        a, b = a[rows], b[rows]
-        knots = self._knots(a, b)
-        n, k = knots.shape
-        t = np.sort(np.where(np.isfinite(knots) & (knots > 0.0) & (knots < 1.0), knots, 1.0))
-        cuts = np.concatenate([np.zeros((n, 1)), t, np.ones((n, 1))], axis=1)
-        probe = np.concatenate(
-            [np.zeros((n, 1)), 0.5 * (cuts[:, 1:] + cuts[:, :-1]), np.ones((n, 1))], axis=1
-        )
-        pts = a[:, None, :] + probe[:, :, None] * (b - a)[:, None, :]
-        lab = self.membership(pts.reshape(-1, self.dim)).reshape(n, k + 3, -1)
-        out[rows] = np.any(lab[:, 1:] != lab[:, :-1], axis=2).sum(axis=1)
+        t = np.sort(self._crossings(a[rows], b[rows]), axis=1)
+        finite = np.isfinite(t)
+        repeat = finite[:, 1:] & (np.diff(t, axis=1) <= 1e-12)
+        out[rows] = finite.sum(axis=1) - repeat.sum(axis=1)
         return out
 
-    def _knots(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    def _crossings(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """(n, K) parameters in (0, 1) where segments cross a region boundary (NaN: none)."""
         u = b - a
         parts = [np.full((len(a), 0), np.nan)]
         with np.errstate(divide="ignore", invalid="ignore"):
             if self._box:
-                lo = (self.box_lo - a[:, None, :]) / u[:, None, :]
-                hi = (self.box_hi - a[:, None, :]) / u[:, None, :]
-                parts += [lo.reshape(len(a), -1), hi.reshape(len(a), -1)]
+                t_lo = (self.box_lo - a[:, None, :]) / u[:, None, :]
+                t_hi = (self.box_hi - a[:, None, :]) / u[:, None, :]
+                flat = u[:, None, :] == 0.0
+                inside = (a[:, None, :] >= self.box_lo) & (a[:, None, :] <= self.box_hi)
+                near_t = np.where(flat, np.where(inside, -np.inf, np.inf), np.minimum(t_lo, t_hi))
+                far_t = np.where(flat, np.where(inside, np.inf, -np.inf), np.maximum(t_lo, t_hi))
+                enter = near_t.max(axis=2)
+                leave = far_t.min(axis=2)
+                hit = enter < leave
+                parts += [np.where(hit, enter, np.nan), np.where(hit, leave, np.nan)]
             if self._ball:
                 w = a[:, None, :] - self.ball_c
                 qa = (u * u).sum(axis=1)[:, None]
                 qb = 2.0 * np.einsum("nd,nkd->nk", u, w)
                 qc = np.einsum("nkd,nkd->nk", w, w) - self.ball_r2
-                root = np.sqrt(qb * qb - 4.0 * qa * qc)
+                disc = qb * qb - 4.0 * qa * qc
+                root = np.sqrt(np.where(disc > 0.0, disc, np.nan))
                 parts += [(-qb - root) / (2.0 * qa), (-qb + root) / (2.0 * qa)]
             if self._poly:
                 e = self.e1 - self.e0
                 w = self.e0 - a[:, None, :]
                 uu = u[:, None, :]
                 den = uu[..., 0] * e[:, 1] - uu[..., 1] * e[:, 0]
-                t = (w[..., 0] * e[:, 1] - w[..., 1] * e[:, 0]) / den
-                s = (w[..., 0] * uu[..., 1] - w[..., 1] * uu[..., 0]) / den
-                parts.append(np.where((s >= 0.0) & (s <= 1.0), t, np.nan))
-        return np.concatenate(parts, axis=1)
+                tt = (w[..., 0] * e[:, 1] - w[..., 1] * e[:, 0]) / den
+                ss = (w[..., 0] * uu[..., 1] - w[..., 1] * uu[..., 0]) / den
+                parts.append(np.where((ss >= 0.0) & (ss <= 1.0), tt, np.nan))
+        t = np.concatenate(parts, axis=1)
+        return np.where((t > 0.0) & (t < 1.0), t, np.nan)

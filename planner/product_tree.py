@@ -205,27 +205,38 @@ class ProductTree:
             return []
         mask_new = self.oracle.masks(x_new[None, :])[0]
         near_l, d_l = near.tolist(), d.tolist()
-        best: dict[int, tuple[float, int]] = {}
-        cost, node_q, succ = self.cost, self.node_q, self.successors
+        cost, node_q, succ, pt_nodes = self.cost, self.node_q, self.successors, self.pt_nodes
+        # Cheapest way to reach x_new from each automaton state among the neighbours.
+        via: dict[int, tuple[float, int]] = {}
         for pid, dd in zip(near_l, d_l, strict=True):
-            for nid in self.pt_nodes[pid]:
+            for nid in pt_nodes[pid]:
                 c = cost[nid] + dd
-                for q2 in succ(node_q[nid], mask_new):
-                    old = best.get(q2)
-                    if old is None or c < old[0]:
-                        best[q2] = (c, nid)
+                q = node_q[nid]
+                old = via.get(q)
+                if old is None or c < old[0]:
+                    via[q] = (c, nid)
+        best: dict[int, tuple[float, int]] = {}
+        for q, (c, nid) in via.items():
+            for q2 in succ(q, mask_new):
+                old = best.get(q2)
+                if old is None or c < old[0]:
+                    best[q2] = (c, nid)
         if not best:
             return []
         pid_new = self.add_point(x_new, mask_new)
         new = [self.add_node(pid_new, q2, best[q2][1], best[q2][0]) for q2 in sorted(best)]
+        masks = self.mask
         for nid_new in new:
             q2 = node_q[nid_new]
+            base = cost[nid_new]
             for pid, dd in zip(near_l, d_l, strict=True):
-                m_mask = self.mask[pid]
-                for m in self.pt_nodes[pid]:
-                    c = cost[nid_new] + dd
-                    if c < cost[m] - 1e-12 and node_q[m] in succ(q2, m_mask):
-                        self.reparent(m, nid_new, c)
+                c = base + dd
+                nodes = [m for m in pt_nodes[pid] if c < cost[m] - 1e-12]
+                if nodes:
+                    reach = succ(q2, masks[pid])
+                    for m in nodes:
+                        if node_q[m] in reach:
+                            self.reparent(m, nid_new, c)
         return new
 
     def reparent(self, nid: int, parent: int, cost: float) -> None:
