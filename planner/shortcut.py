@@ -46,6 +46,13 @@ class LassoRun:
         return self.weight * _length(self.prefix) + (1.0 - self.weight) * _length(self.suffix)
 
 
+def _directions(dim: int) -> np.ndarray:
+    """Unit vectors toward the 3^d - 1 neighbours of a grid cell (8 in 2D, 26 in 3D)."""
+    grid = np.array(np.meshgrid(*[[-1.0, 0.0, 1.0]] * dim, indexing="ij")).reshape(dim, -1).T
+    grid = grid[np.any(grid != 0.0, axis=1)]
+    return np.asarray(grid / np.linalg.norm(grid, axis=1, keepdims=True))
+
+
 def _length(x: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(x, axis=0), axis=1).sum()) if len(x) > 1 else 0.0
 
@@ -127,8 +134,46 @@ class _Ops:
                 good[k] = q_here[k] in self.succ(q_prev[k], m)
         return good
 
+    def compass(self, x: np.ndarray, q: list[int]) -> np.ndarray:
+        """One pattern-search pass: try each interior waypoint at fixed directions and
+        fractions of its shorter adjacent segment, keep the cheapest valid improvement. Unlike
+        :meth:`tighten` this slides waypoints along region and obstacle boundaries."""
+        x = x.copy()
+        dirs = _directions(x.shape[1])
+        fracs = np.array([0.5, 0.25, 0.125, 0.0625])
+        steps = (fracs[:, None, None] * dirs[None]).reshape(-1, x.shape[1])
+        for parity in (1, 2):
+            ks = np.arange(parity, len(x) - 1, 2)
+            if ks.size == 0:
+                continue
+            a, b, p = x[ks - 1], x[ks + 1], x[ks]
+            scale = np.minimum(np.linalg.norm(p - a, axis=1), np.linalg.norm(p - b, axis=1))
+            cand = p[:, None, :] + scale[:, None, None] * steps[None]
+            here = np.linalg.norm(p - a, axis=1) + np.linalg.norm(p - b, axis=1)
+            cost = np.linalg.norm(cand - a[:, None], axis=2) + np.linalg.norm(
+                cand - b[:, None], axis=2
+            )
+            better = cost < here[:, None] - 1e-12
+            rows, cols = np.nonzero(better)
+            if rows.size == 0:
+                continue
+            good = self._moves_ok(
+                a[rows],
+                cand[rows, cols],
+                b[rows],
+                [q[k - 1] for k in ks[rows]],
+                [q[k] for k in ks[rows]],
+            )
+            score = np.full(better.shape, np.inf)
+            score[rows[good], cols[good]] = cost[rows[good], cols[good]]
+            pick = np.argmin(score, axis=1)
+            moved = np.isfinite(score[np.arange(ks.size), pick])
+            x[ks[moved]] = cand[np.flatnonzero(moved), pick[moved]]
+        return x
+
     def move_star(self, run: LassoRun) -> LassoRun:
-        """Move the shared point x* toward the weighted median of its neighbours."""
+        """Move the shared point x* of prefix and suffix: toward the weighted geometric median
+        of its neighbours, or by a pattern-search step, whichever valid move is cheapest."""
         p, s = run.prefix, run.suffix
         q_star = run.prefix_states[-1]
         x = p[-1]
@@ -143,28 +188,37 @@ class _Ops:
         for _ in range(20):
             d = np.maximum(np.linalg.norm(nbrs - goal, axis=1), 1e-12)
             goal = (wts[:, None] * nbrs / d[:, None]).sum(axis=0) / (wts / d).sum()
-        for step in (1.0, 0.5, 0.25, 0.125, 0.0625):
-            c = x + step * (goal - x)
-            if (
-                not self.free(c[None, :])[0]
-                or not self.ok(nbrs, np.broadcast_to(c, nbrs.shape)).all()
-            ):
-                continue
-            m = self.oracle.masks(c[None, :])[0]
+        toward = x + np.array([1.0, 0.5, 0.25, 0.125, 0.0625])[:, None] * (goal - x)
+        scale = float(np.linalg.norm(nbrs - x, axis=1).min())
+        fracs = np.array([0.5, 0.25, 0.125, 0.0625])
+        dirs = _directions(len(x))
+        compass = x + scale * (fracs[:, None, None] * dirs[None]).reshape(-1, len(x))
+        cand = np.vstack([toward, compass])
+        cost = (wts * np.linalg.norm(cand[:, None, :] - nbrs[None], axis=2)).sum(axis=1)
+        here = float((wts * np.linalg.norm(nbrs - x, axis=1)).sum())
+        order = [int(i) for i in np.argsort(cost) if cost[i] < here - 1e-12]
+        if not order:
+            return run
+        c = cand[order]
+        good = self.free(c)
+        idx = np.flatnonzero(good)
+        if idx.size:
+            k = len(nbrs)
+            geo = self.ok(np.repeat(c[idx], k, axis=0), np.tile(nbrs, (idx.size, 1)))
+            good[idx] = geo.reshape(idx.size, k).all(axis=1)
+        for i in np.flatnonzero(good).tolist():
+            m = self.oracle.masks(c[i][None, :])[0]
             if q_star not in self.succ(run.prefix_states[-2], m):
                 continue
-            if len(s) > 1 and q_star not in self.succ(run.suffix_states[-2], m):
-                continue
-            if len(s) == 1 and q_star not in self.succ(q_star, m):
+            loop_from = run.suffix_states[-2] if len(s) > 1 else q_star
+            if q_star not in self.succ(loop_from, m):
                 continue
             pre = p.copy()
-            pre[-1] = c
+            pre[-1] = c[i]
             suf = s.copy()
-            suf[0] = c
-            suf[-1] = c
-            moved = replace(run, prefix=pre, suffix=suf)
-            if moved.cost < run.cost:
-                return moved
+            suf[0] = c[i]
+            suf[-1] = c[i]
+            return replace(run, prefix=pre, suffix=suf)
         return run
 
     # --------------------------------------------------------------------------- subdivide
@@ -252,6 +306,13 @@ def polish(
                 cur,
                 prefix=ops.tighten(cur.prefix, cur.prefix_states),
                 suffix=ops.tighten(cur.suffix, cur.suffix_states),
+            )
+            cur = ops.move_star(cur)
+        for _ in range(3):
+            cur = replace(
+                cur,
+                prefix=ops.compass(cur.prefix, cur.prefix_states),
+                suffix=ops.compass(cur.suffix, cur.suffix_states),
             )
             cur = ops.move_star(cur)
         cur = _shortcut_run(ops, cur)
