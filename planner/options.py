@@ -12,24 +12,54 @@ class PlannerSpec(BaseModel):
 
     seed: int = Field(0, description="Seed of the planner's random generator.")
     eta: float | None = Field(
-        None, gt=0, description="RRT* steering step in workspace units; default: 1/20 of the "
-        "workspace diagonal.")
+        None,
+        gt=0,
+        description="RRT* steering step in workspace units; default: 1/20 of the "
+        "workspace diagonal.",
+    )
     r_ball: float | None = Field(
-        None, gt=0, description="Radius of the guide's r-balls; default eta/2 (the paper's r <= eta/2).")
+        None,
+        gt=0,
+        description="Radius of the guide's r-balls; default eta/2 (the paper's r <= eta/2).",
+    )
     bias: float = Field(
-        0.8, ge=0, le=1, description="Probability of sampling toward the automaton transition on the "
-        "shortest path to acceptance (TL-RRT* biased sampling); the rest is uniform.")
+        0.8,
+        ge=0,
+        le=1,
+        description="Probability of sampling toward the automaton transition on the "
+        "shortest path to acceptance (TL-RRT* biased sampling); the rest is uniform.",
+    )
     max_iterations: int = Field(
-        200_000, gt=0, description="Hard cap on TL-RRT* iterations for the prefix and for the suffix; "
-        "exceeding it without a lasso is an infeasible mission.")
+        200_000,
+        gt=0,
+        description="Hard cap on TL-RRT* iterations for the prefix and for the suffix; "
+        "exceeding it without a lasso is an infeasible mission.",
+    )
     time_limit: float = Field(
-        120.0, gt=0, description="CPU seconds to find a first lasso before giving up.")
+        120.0, gt=0, description="CPU seconds to find a first lasso before giving up."
+    )
     refine_seconds: float = Field(
-        1.0, ge=0, description="Anytime budget in CPU seconds spent improving the lasso after the first "
-        "one is found (0: stop at the first lasso).")
+        1.0,
+        ge=0,
+        description="Anytime budget in CPU seconds spent improving the lasso after the first "
+        "one is found (0: stop at the first lasso).",
+    )
+    refine_iterations: int | None = Field(
+        None,
+        gt=0,
+        description="If set, the anytime phase runs this many iterations of the prefix "
+        "tree (and as many of each suffix tree) instead of refine_seconds: the result then no "
+        "longer depends on CPU speed and is deterministic for a seed.",
+    )
     prefix_weight: float = Field(
-        0.2, ge=0, le=1, description="Lasso cost = prefix_weight * prefix length + (1 - prefix_weight) "
-        "* suffix length, as in TL-RRT*.")
+        0.2,
+        ge=0,
+        le=1,
+        description="Lasso cost = prefix_weight * prefix length + (1 - prefix_weight) "
+        "* suffix length, as in TL-RRT*.",
+    )
     shortcut: bool = Field(
-        True, description="Shorten the lasso by shortcutting waypoints while the automaton run and "
-        "collision freedom are preserved.")
+        True,
+        description="Shorten the lasso by shortcutting waypoints while the automaton run and "
+        "collision freedom are preserved.",
+    )

@@ -289,13 +289,22 @@ class _Planner:
             else:
                 self._grow_prefix(20, until_goal=True)
 
-    def refine(self, seconds: float) -> None:
-        """Anytime phase: grow the prefix and the suffix trees for ``seconds`` CPU seconds."""
+    def refine(self, seconds: float, iterations: int | None = None) -> None:
+        """Anytime phase: grow the prefix and the suffix trees for ``seconds`` CPU seconds, or
+        for ``iterations`` prefix iterations when given (deterministic)."""
         deadline = self.elapsed() + seconds
-        while self.elapsed() < deadline:
+        stop = self.prefix.iterations + iterations if iterations is not None else None
+        while True:
+            if stop is None and self.elapsed() >= deadline:
+                return
+            if stop is not None and self.prefix.iterations >= stop:
+                return
+            before = self.prefix.iterations
             self._grow_prefix(30)
             self._consider_candidates(limit=4)
-            self._grow_suffixes(30, deadline)
+            self._grow_suffixes(30, math.inf if stop is not None else deadline)
+            if self.prefix.iterations == before and stop is not None:
+                return
 
     def best_lassos(self, k: int) -> list[Lasso]:
         """The ``k`` cheapest lassos available from the current trees."""
@@ -366,7 +375,9 @@ class _Planner:
     def run(self) -> Lasso:
         first = self.first_lasso()
         t_first = self.elapsed()
-        if self.options.refine_seconds > 0 and first.cost > 0:
+        if first.cost > 0 and self.options.refine_iterations is not None:
+            self.refine(0.0, self.options.refine_iterations)
+        elif first.cost > 0 and self.options.refine_seconds > 0:
             self.refine(self.options.refine_seconds)
         candidates = self.best_lassos(3)
         best = candidates[0]
@@ -421,8 +432,9 @@ def plan_lasso(
 
     ``rng`` defaults to ``numpy.random.default_rng(options.seed)``. Raises PlanningError when
     the automaton has no accepting run, or when ``max_iterations`` / ``time_limit`` run out
-    without a lasso (the message names the regions never reached). With ``refine_seconds > 0``
-    the result depends on CPU speed; with ``refine_seconds = 0`` it is deterministic per seed.
+    without a lasso (the message names the regions never reached). The anytime phase runs for
+    ``refine_seconds`` CPU seconds, so its result depends on the CPU's speed; with
+    ``refine_iterations`` (or ``refine_seconds = 0``) the plan is deterministic for a seed.
     """
     gen = rng if rng is not None else np.random.default_rng(options.seed)
     return _Planner(world, nba, start, clearance, options, gen).run()
