@@ -87,6 +87,7 @@ class _Growth:
         self.bias = bias
         self.home = home
         self.iterations = 0
+        self.stall = 0
         self.goal_nodes: list[int] = []
 
     def closest_states(self) -> tuple[int, list[int]]:
@@ -97,30 +98,39 @@ class _Growth:
         dmin = min(self.dist[q] for q in present)
         return dmin, sorted(q for q in present if self.dist[q] == dmin)
 
-    def _target(self) -> tuple[np.ndarray, int | None]:
+    def _target(self) -> tuple[np.ndarray, int | None, bool]:
+        """Sampling target, the automaton layer to extend from (None: any) and whether the
+        target is goal-directed."""
         if self.rng.random() >= self.bias:
-            return self.sampler.free(), None
+            return self.sampler.free(), None, False
         dmin, states = self.closest_states()
         if not states:
-            return self.sampler.free(), None
+            return self.sampler.free(), None, False
         q = states[int(self.rng.integers(len(states)))]
-        if dmin == 0:
-            if self.home is None:
-                return self.sampler.free(), None
-            return self.sampler.near(self.home, self.tree.eta), q
+        if dmin == 0 and self.home is None:
+            return self.sampler.free(), None, False
+        # Goal-directed steps that keep failing (the layer is stuck behind an obstacle) are
+        # traded for exploration of the layer toward uniform points.
+        explore = 0.25 + 0.65 * (1.0 - math.exp(-self.stall / 40.0))
+        if self.rng.random() < explore:
+            return self.sampler.free(), q, False
+        if dmin == 0 and self.home is not None:
+            return self.sampler.near(self.home, self.tree.eta), q, True
         cubes = self.paths.advancing_cubes(q, self.dist)
-        if not cubes or self.rng.random() < 0.25:
-            return self.sampler.free(), q
+        if not cubes:
+            return self.sampler.free(), q, False
         x = self.sampler.satisfying(cubes[int(self.rng.integers(len(cubes)))])
-        return (self.sampler.free() if x is None else x), q
+        return (self.sampler.free(), q, False) if x is None else (x, q, True)
 
     def step(self) -> list[int]:
         """One biased-or-uniform RRT* iteration; returns the new nodes that reach the goal."""
         self.iterations += 1
-        target, layer = self._target()
+        target, layer, directed = self._target()
         new = self.tree.extend(target, layer)
         hits = [n for n in new if self.dist.get(self.tree.node_q[n]) == 0]
         self.goal_nodes.extend(hits)
+        if directed:
+            self.stall = 0 if new else self.stall + 1
         return hits
 
 
