@@ -1,0 +1,381 @@
+"""Reward modes of the navigation env, and the goal and automaton judges they rely on.
+
+Every mode shares the paper's priorities (Cai et al., RA-L 2023): a crash (the robot's disc or
+sphere meets an obstacle or leaves the bounds) earns ``R-`` and ends the episode; reaching the
+goal earns ``R++`` and ends it with success; otherwise the mode's step reward applies. What
+"reaching the goal" means is decided by a *judge*:
+
+* region judge (``rrt-paper``, ``rrt``, ``ned``): the sub-task's goal region contains the robot's
+  workspace point (for a sub-task without a goal region, ``goal == ""``: the point lies in the
+  guide's last r-ball, ``D = 0``);
+* automaton judge (``tl``, ``g-rrt``): the Büchi automaton, run on the labels ``L(x)`` the robot
+  visits, makes the sub-task's transition ``nba_state -> next_nba_state`` (``g-rrt``: every
+  sub-task's transition in order). A label sequence that kills every run of the automaton (the
+  specification is violated) ends the episode like a crash, with ``R-``.
+
+The step rewards (a *gain* is the decrease of the guide distance-to-go ``D_min`` in metres this
+step, see ``envs.nav_env``):
+
+* ``rrt-paper``: exactly the paper: ``R+`` on a new minimum of ``D``, else 0.
+* ``rrt`` (default) and ``g-rrt``: ``progress * gain - step_cost``: rewards scaled so critic values
+  stay near 1, progress proportional to the metres of guide gained (not a constant per ball, so a
+  long jump is worth what it covers), and a per-step cost well below the crash penalty so that
+  standing still is worse than driving (the "parking" optimum measured in issue 4).
+* ``ned``: ``-distance * dist(x, goal region)``: negative Euclidean distance, scaled.
+* ``tl``: 0 (sparse: only ``R++`` on accepting progress and ``R-``).
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, fields
+from typing import Any, ClassVar
+
+import numpy as np
+
+from planner.automaton import Buchi
+from planner.errors import LtlnavError
+from planner.shapes import Ball, Box, Shape
+
+RUNNING = 0
+"""Judge outcome: the episode goes on."""
+SUCCESS = 1
+"""Judge outcome: the goal is reached (``R++``, terminated, ``is_success``)."""
+VIOLATION = 2
+"""Judge outcome: the automaton rejects the labels seen (``R-``, terminated, no success)."""
+
+
+class EnvConfigError(LtlnavError, ValueError):
+    """An env that cannot be built as asked: bad option, unknown reward mode, missing plan, a
+    start of the wrong dimension... ``field`` names the culprit (``reward``, ``options.rays``)."""
+
+    def __init__(self, field: str, message: str) -> None:
+        self.field = field
+        self.reason = message
+        super().__init__(f"{field}: {message}")
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """Reward constants; ``None`` takes the mode's default. Setting a constant that the chosen
+    mode does not use is an error (it would be silently ignored otherwise)."""
+
+    crash: float | None = None
+    """``R-``: reward of the step that crashes (or violates the automaton). Every mode."""
+    goal: float | None = None
+    """``R++``: reward of the step that reaches the goal. Every mode."""
+    progress: float | None = None
+    """``rrt-paper``: ``R+`` per new minimum of ``D``; ``rrt``/``g-rrt``: reward per metre of
+    guide distance-to-go gained."""
+    step_cost: float | None = None
+    """``rrt``/``g-rrt``: cost subtracted on every non-terminal step (against parking)."""
+    distance: float | None = None
+    """``ned``: penalty per metre of Euclidean distance to the goal region, per step."""
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if value is None:
+                continue
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise EnvConfigError(f"rewards.{f.name}", f"must be a number, got {value!r}")
+            if not math.isfinite(value):
+                raise EnvConfigError(f"rewards.{f.name}", f"must be finite, got {value}")
+        for name in ("step_cost", "distance", "progress"):
+            value = getattr(self, name)
+            if value is not None and value < 0:
+                raise EnvConfigError(f"rewards.{name}", f"must be >= 0, got {value}")
+
+
+# ----------------------------------------------------------------------------- geometry tests
+class RegionTest:
+    """Scalar membership and distance of one workspace shape: plain float arithmetic for boxes
+    and balls (a fraction of a microsecond), the shape's own methods otherwise."""
+
+    def __init__(self, shape: Shape) -> None:
+        self.shape = shape
+        self.contains: Callable[[Sequence[float]], bool] = self._generic_contains
+        """Whether a point lies in the shape (boundary included)."""
+        if isinstance(shape, Box):
+            lo, hi = tuple(shape.lo.tolist()), tuple(shape.hi.tolist())
+            self._lo, self._hi = lo, hi
+            if len(lo) == 2:
+                (a0, a1), (b0, b1) = lo, hi
+                self.contains = lambda x: a0 <= x[0] <= b0 and a1 <= x[1] <= b1
+            else:
+                (a0, a1, a2), (b0, b1, b2) = lo, hi
+                self.contains = lambda x: a0 <= x[0] <= b0 and a1 <= x[1] <= b1 and a2 <= x[2] <= b2
+        elif isinstance(shape, Ball):
+            centre, radius = tuple(shape.center.tolist()), float(shape.radius)
+            self._centre, self._radius = centre, radius
+            self.contains = lambda x: math.dist(x, centre) <= radius
+
+    def _generic_contains(self, x: Sequence[float]) -> bool:
+        return bool(self.shape.contains(np.array([x], dtype=float))[0])
+
+    def distance(self, x: Sequence[float]) -> float:
+        """Euclidean distance from ``x`` to the shape (0 inside)."""
+        if isinstance(self.shape, Box):
+            d2 = 0.0
+            for v, a, b in zip(x, self._lo, self._hi, strict=False):
+                gap = a - v if v < a else (v - b if v > b else 0.0)
+                d2 += gap * gap
+            return math.sqrt(d2)
+        if isinstance(self.shape, Ball):
+            return max(0.0, math.dist(x, self._centre) - self._radius)
+        return float(self.shape.distance(np.array([x], dtype=float))[0])
+
+
+class RegionLabeler:
+    """``L(x)`` without the obstacle label (a robot in an obstacle has crashed already), one
+    point at a time; label sets are interned so that equal labels are the same object."""
+
+    def __init__(self, names: Sequence[str], shapes: Sequence[Shape]) -> None:
+        self._tests = [(1 << k, RegionTest(s)) for k, s in enumerate(shapes)]
+        self._names = list(names)
+        self._sets: dict[int, frozenset[str]] = {}
+
+    def labels(self, x: Sequence[float]) -> frozenset[str]:
+        """The names of the regions containing ``x``."""
+        mask = 0
+        for bit, test in self._tests:
+            if test.contains(x):
+                mask |= bit
+        found = self._sets.get(mask)
+        if found is None:
+            found = frozenset(n for k, n in enumerate(self._names) if mask >> k & 1)
+            self._sets[mask] = found
+        return found
+
+
+# ----------------------------------------------------------------------------- automaton
+@dataclass(frozen=True)
+class Stage:
+    """One sub-task seen by the automaton: from ``source`` make the transition to ``target``; when
+    ``source == target`` (a piece that stays in one state) the stage ends on entering ``goal``
+    (or, without a goal region, at the end of its guide)."""
+
+    source: int
+    target: int
+    goal: str
+
+
+class AutomatonTracker:
+    """The set of automaton states reachable on the labels read so far, through a sequence of
+    stages (one per sub-task). Within a stage the set starts at the stage's ``source``; when it
+    contains the ``target`` the stage is complete and the next starts at that target (the run
+    commits to the plan's state). An empty set means the specification is violated.
+
+    Transitions of a (state set, label) pair are memoised, so a step costs a dict lookup.
+    """
+
+    def __init__(self, nba: Buchi, stages: Sequence[Stage]) -> None:
+        if not stages:
+            raise EnvConfigError("plan", "the automaton judge needs at least one sub-task")
+        for s in stages:
+            for q in (s.source, s.target):
+                if not 0 <= q < nba.num_states:
+                    raise EnvConfigError("plan", f"automaton state {q} is not in the automaton")
+        self.nba = nba
+        self.stages = tuple(stages)
+        self.stage = 0
+        self.states: frozenset[int] = frozenset({stages[0].source})
+        self._post: dict[tuple[frozenset[int], frozenset[str]], frozenset[int]] = {}
+
+    def reset(self, stage: int = 0) -> None:
+        """Start stage ``stage`` at its source state."""
+        self.stage = stage
+        self.states = frozenset({self.stages[stage].source})
+
+    @property
+    def done(self) -> bool:
+        """Every stage is complete."""
+        return self.stage >= len(self.stages)
+
+    def read(self, label: frozenset[str], at_end: bool) -> int:
+        """Read one label; ``at_end`` tells whether the robot is in its guide's last ball.
+        Returns how many stages completed on this label (0 or 1), or -1 on a violation."""
+        key = (self.states, label)
+        nxt = self._post.get(key)
+        if nxt is None:
+            nxt = frozenset(q2 for q in self.states for q2 in self.nba.successors(q, label))
+            self._post[key] = nxt
+        if not nxt:
+            self.states = nxt
+            return -1
+        self.states = nxt
+        stage = self.stages[self.stage]
+        if stage.source != stage.target:
+            complete = stage.target in nxt
+        else:
+            complete = (stage.goal in label) if stage.goal else at_end
+        if not complete:
+            return 0
+        self.stage += 1
+        if self.stage < len(self.stages):
+            self.states = frozenset({self.stages[self.stage].source})
+        return 1
+
+
+# ----------------------------------------------------------------------------- reward modes
+class RewardMode(ABC):
+    """One reward scheme: ``R-``/``R++`` plus the reward of an ordinary step.
+
+    Subclasses declare their name, the constants they use with their defaults, whether they
+    need the mission plan (automaton, whole lasso) and which judge decides success.
+    """
+
+    name: ClassVar[str]
+    defaults: ClassVar[dict[str, float]]
+    """Constants (``RewardConfig`` field names) this mode reads, with their defaults."""
+    automaton: ClassVar[bool] = False
+    """Success is judged by the automaton (needs ``plan``) instead of the goal region."""
+    whole_lasso: ClassVar[bool] = False
+    """One episode covers the whole lasso (every sub-task) instead of one sub-task."""
+
+    def __init__(self, config: RewardConfig) -> None:
+        values: dict[str, float] = dict(self.defaults)
+        for f in fields(config):
+            value = getattr(config, f.name)
+            if value is None:
+                continue
+            if f.name not in self.defaults:
+                used = ", ".join(sorted(self.defaults))
+                raise EnvConfigError(
+                    f"rewards.{f.name}",
+                    f"reward mode {self.name!r} does not use {f.name!r} (it uses: {used})",
+                )
+            values[f.name] = float(value)
+        self.constants = values
+        self.crash = values["crash"]
+        """``R-``."""
+        self.goal = values["goal"]
+        """``R++``."""
+        self.goal_region: RegionTest | None = None
+        """The current goal region (None: the end of the guide, ``goal_end``)."""
+        self.goal_end: tuple[float, ...] = ()
+
+    def bind_goal(self, goal: RegionTest | None, end: Sequence[float]) -> None:
+        """Tell the mode the goal region (None: no region, the guide's end point ``end``)."""
+        self.goal_region = goal
+        self.goal_end = tuple(float(v) for v in end)
+
+    @abstractmethod
+    def step_reward(self, improved: bool, gain: float, x: Sequence[float]) -> float:
+        """Reward of a step that neither crashed nor reached the goal: ``improved`` is a new
+        minimum of ``D``, ``gain`` the metres of distance-to-go gained, ``x`` the position."""
+
+
+class PaperReward(RewardMode):
+    """``rrt-paper``: ``R-`` = -100 in an obstacle (first priority), ``R++`` = 200 at the goal,
+    ``R+`` = 5 on a new minimum of ``D`` (a ball closer to the end than any before), else 0."""
+
+    name = "rrt-paper"
+    defaults: ClassVar[dict[str, float]] = {"crash": -100.0, "goal": 200.0, "progress": 5.0}
+
+    def __init__(self, config: RewardConfig) -> None:
+        super().__init__(config)
+        self._plus = self.constants["progress"]
+
+    def step_reward(self, improved: bool, gain: float, x: Sequence[float]) -> float:
+        return self._plus if improved else 0.0
+
+
+class ScaledReward(RewardMode):
+    """``rrt`` (default): ``R-`` = -1, ``R++`` = +2, else ``0.05 * gain - 0.001`` where ``gain``
+    is the metres of guide distance-to-go gained this step (entering the first ball counts from
+    the guide's start). At 1 m/s and 10 Hz a robot following the guide earns +0.004 a step, a
+    parked one -0.001 (about -0.1 over a 0.99-discounted horizon, well above the crash value
+    -1, so crashing on purpose never pays)."""
+
+    name = "rrt"
+    defaults: ClassVar[dict[str, float]] = {
+        "crash": -1.0,
+        "goal": 2.0,
+        "progress": 0.05,
+        "step_cost": 0.001,
+    }
+
+    def __init__(self, config: RewardConfig) -> None:
+        super().__init__(config)
+        self._per_metre = self.constants["progress"]
+        self._cost = self.constants["step_cost"]
+
+    def step_reward(self, improved: bool, gain: float, x: Sequence[float]) -> float:
+        return self._per_metre * gain - self._cost
+
+
+class GlobalReward(ScaledReward):
+    """``g-rrt``: the ``rrt`` reward and constants on one guide through the whole lasso (the
+    prefix and one suffix cycle, every sub-task path end to end) with one agent; success when
+    the automaton has made every sub-task's transition in order (see ``envs.nav_env``)."""
+
+    name = "g-rrt"
+    automaton = True
+    whole_lasso = True
+
+
+class DistanceReward(RewardMode):
+    """``ned``: ``R-`` = -1, ``R++`` = +2, else ``-0.0005 * dist(x, goal region)`` per step
+    (at 10 m that is -0.005 a step, about -0.5 over a 0.99-discounted horizon)."""
+
+    name = "ned"
+    defaults: ClassVar[dict[str, float]] = {"crash": -1.0, "goal": 2.0, "distance": 0.0005}
+
+    def __init__(self, config: RewardConfig) -> None:
+        super().__init__(config)
+        self._scale = self.constants["distance"]
+
+    def step_reward(self, improved: bool, gain: float, x: Sequence[float]) -> float:
+        if self.goal_region is not None:
+            return -self._scale * self.goal_region.distance(x)
+        return -self._scale * math.dist(x, self.goal_end)
+
+
+class AutomatonReward(RewardMode):
+    """``tl``: sparse: ``R++`` = +2 when the automaton makes the sub-task's transition
+    ``nba_state -> next_nba_state`` (accepting progress), ``R-`` = -1 on a crash or when the
+    labels violate the specification, else 0."""
+
+    name = "tl"
+    defaults: ClassVar[dict[str, float]] = {"crash": -1.0, "goal": 2.0}
+    automaton = True
+
+    def step_reward(self, improved: bool, gain: float, x: Sequence[float]) -> float:
+        return 0.0
+
+
+REWARD_MODES: dict[str, type[RewardMode]] = {
+    cls.name: cls
+    for cls in (ScaledReward, PaperReward, GlobalReward, DistanceReward, AutomatonReward)
+}
+"""Every reward mode by name; ``rrt`` is the default."""
+
+
+def reward_mode(name: str, config: RewardConfig | None = None) -> RewardMode:
+    """The reward mode ``name`` with ``config`` over its defaults (``EnvConfigError`` for an
+    unknown name or a constant the mode does not use)."""
+    cls = REWARD_MODES.get(name) if isinstance(name, str) else None
+    if cls is None:
+        known = ", ".join(REWARD_MODES)
+        raise EnvConfigError("reward", f"unknown reward mode {name!r}; known: {known}")
+    return cls(config if config is not None else RewardConfig())
+
+
+def reward_config(value: RewardConfig | dict[str, Any] | None) -> RewardConfig:
+    """A ``RewardConfig`` from itself, a mapping of its field names, or None (all defaults)."""
+    if value is None:
+        return RewardConfig()
+    if isinstance(value, RewardConfig):
+        return value
+    if isinstance(value, dict):
+        known = [f.name for f in fields(RewardConfig)]
+        for key in value:
+            if key not in known:
+                raise EnvConfigError(
+                    f"rewards.{key}", f"unknown reward constant; known: {', '.join(known)}"
+                )
+        return RewardConfig(**value)
+    raise EnvConfigError("rewards", f"expected a RewardConfig or a mapping, got {value!r}")
