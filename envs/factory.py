@@ -1,0 +1,237 @@
+"""``make_env``: the navigation env of one sub-task of a mission, and its Gymnasium id.
+
+``make_env(mission, subtask, reward="rrt", **options)`` reads only the mission's ``world`` (a
+``WorldSpec``-like object with ``build(keep_clear=...)``) and ``robot`` (``RobotSpec``): the
+envs layer never imports ``workers``, so any object of the ``MissionLike`` shape will do. It is
+also registered as ``ltlnav/Nav-v0``: ``gymnasium.make("ltlnav/Nav-v0", mission=m,
+subtask=s, reward="rrt", ...)`` takes the same arguments.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any, Protocol
+
+import gymnasium as gym
+import numpy as np
+
+from envs.nav_env import EnvOptions, Leg, NavEnv
+from envs.rewards import EnvConfigError, RegionTest, reward_config, reward_mode
+from envs.robots import Robot, make_robot, robot_class
+from envs.robots.racecar import WHEEL_RADIUS, RacecarParams
+from envs.spec import RobotSpec
+from planner.decompose import SubTask
+from planner.guidance import Guide, ProgressTracker
+from planner.world import World
+
+if TYPE_CHECKING:
+    from planner.plan import MissionPlan
+
+ENV_ID = "ltlnav/Nav-v0"
+"""The Gymnasium id of the navigation env."""
+
+
+class WorldSource(Protocol):
+    """What ``make_env`` needs of a mission's world section: a way to build the ``World``."""
+
+    def build(self, keep_clear: Sequence[np.ndarray] = ()) -> World: ...
+
+
+class MissionLike(Protocol):
+    """What ``make_env`` needs of a mission (``workers.mission.MissionSpec`` fits)."""
+
+    @property
+    def world(self) -> WorldSource: ...
+
+    @property
+    def robot(self) -> RobotSpec: ...
+
+
+def _options(options: EnvOptions | None, overrides: dict[str, Any]) -> EnvOptions:
+    base = options if options is not None else EnvOptions()
+    if not isinstance(base, EnvOptions):
+        raise EnvConfigError("options", f"expected EnvOptions, got {type(base).__name__}")
+    known = EnvOptions.field_names()
+    for key in overrides:
+        if key not in known:
+            raise EnvConfigError(key, f"unknown env option; known: {', '.join(known)}")
+    if "rewards" in overrides:
+        overrides = {**overrides, "rewards": reward_config(overrides["rewards"])}
+    return dataclasses.replace(base, **overrides) if overrides else base
+
+
+def make_env(
+    mission: MissionLike,
+    subtask: SubTask | int | None = None,
+    reward: str = "rrt",
+    *,
+    world: World | None = None,
+    plan: MissionPlan | None = None,
+    robot: Robot | None = None,
+    render_mode: str | None = None,
+    options: EnvOptions | None = None,
+    **overrides: Any,
+) -> NavEnv:
+    """The navigation env of ``subtask`` of ``mission`` under reward mode ``reward``.
+
+    ``subtask`` is a ``SubTask`` or an index into ``plan.subtasks``; ``g-rrt`` drives the
+    whole lasso and takes None. ``world`` is the mission's prebuilt world (otherwise built from
+    ``mission.world`` with the robot's start kept clear, as ``MissionSpec.build_world`` does);
+    ``plan`` is required by ``tl`` and ``g-rrt`` (automaton, every sub-task) and supplies the
+    r-ball radius. ``robot`` shares an already built robot (the env will not close it), e.g.
+    to hand over between the sub-task envs of a mission rollout. ``options`` and keyword
+    ``overrides`` (any ``EnvOptions`` field; ``rewards`` may be a mapping) tune the env.
+
+    Raises ``EnvConfigError`` (a ``ValueError``) for an unknown reward mode or option, a missing
+    plan, a start of the wrong dimension or in collision, and ``RobotConfigError`` (also a
+    ``ValueError``) for an unknown robot model or a world the robot cannot move in.
+    """
+    opts = _options(options, overrides)
+    mode = reward_mode(reward, opts.rewards)
+    spec = mission.robot
+    robot_class(spec.model)
+    if world is None:
+        world = mission.world.build(keep_clear=[spec.position()])
+    start = np.asarray(spec.position(), dtype=float)
+    if start.shape != (world.dim,):
+        raise EnvConfigError(
+            "robot.start",
+            f"the {spec.model} robot starts at a {start.shape[0]}D position but the world is "
+            f"{world.dim}D",
+        )
+    if mode.automaton and plan is None:
+        raise EnvConfigError(
+            "plan",
+            f"reward mode {reward!r} needs the mission plan (its automaton and sub-tasks): "
+            "pass plan=",
+        )
+    if mode.whole_lasso:
+        if subtask is not None:
+            raise EnvConfigError(
+                "subtask", f"reward mode {reward!r} drives the whole lasso: pass subtask=None"
+            )
+        assert plan is not None
+        subtasks = list(plan.subtasks)
+    else:
+        subtasks = [_subtask(subtask, plan)]
+    if plan is not None and plan.start.shape != (world.dim,):
+        raise EnvConfigError("plan", f"the plan is {plan.start.shape[0]}D, the world {world.dim}D")
+    r_ball = opts.r_ball or (plan.r_ball if plan is not None else world.diagonal / 40.0)
+    legs = build_course(world, spec.radius, subtasks, r_ball)
+    heading = legs[0].headings[0]
+    if len(spec.start) > world.dim and np.allclose(subtasks[0].start, start):
+        heading = float(spec.start[world.dim])
+    own = robot is None
+    bot = robot if robot is not None else make_robot(spec.model, world, spec.radius, spec.params)
+    try:
+        return NavEnv(
+            world,
+            bot,
+            legs,
+            mode,
+            opts,
+            max_steps=opts.max_steps or default_max_steps(legs, bot, opts.time_factor),
+            start_heading=heading,
+            nba=plan.pruned if plan is not None else None,
+            render_mode=render_mode,
+            owns_robot=own,
+        )
+    except BaseException:
+        if own:
+            bot.close()
+        raise
+
+
+def build_course(
+    world: World, radius: float, subtasks: Sequence[SubTask], r_ball: float
+) -> list[Leg]:
+    """One ``Leg`` (guide of ``r_ball`` balls, tracker, goal test) per sub-task, checked
+    against ``world`` for a robot of ``radius``: points of the world's dimension, known goal
+    regions, and a first start inside the bounds and collision free."""
+    d = world.dim
+    guides: list[Guide] = []
+    for k, sub in enumerate(subtasks):
+        start, path = np.asarray(sub.start, dtype=float), np.asarray(sub.path, dtype=float)
+        if start.shape != (d,):
+            raise EnvConfigError(
+                "subtask.start",
+                f"sub-task {k} starts at a point of shape {start.shape}; the world is {d}D",
+            )
+        if path.ndim != 2 or path.shape[1] != d or len(path) == 0:
+            raise EnvConfigError("subtask.path", f"sub-task {k}: the path must be (n, {d})")
+        if sub.goal and sub.goal not in world.regions:
+            known = ", ".join(world.region_names) or "none"
+            raise EnvConfigError(
+                "subtask.goal", f"sub-task {k}: no region {sub.goal!r} (known: {known})"
+            )
+        guides.append(Guide.from_path(path, r_ball))
+    if not subtasks:
+        raise EnvConfigError("subtask", "no sub-task to drive")
+    start = np.asarray(subtasks[0].start, dtype=float)
+    if np.any(start < world.bounds[:, 0]) or np.any(start > world.bounds[:, 1]):
+        raise EnvConfigError("subtask.start", f"{start.tolist()} is outside the world bounds")
+    if world.in_collision(start[None, :], radius)[0]:
+        raise EnvConfigError(
+            "subtask.start", f"{start.tolist()} is in collision for a robot of radius {radius:g}"
+        )
+    legs: list[Leg] = []
+    offset = 0
+    lengths = [g.length for g in guides]
+    for k, (sub, guide) in enumerate(zip(subtasks, guides, strict=True)):
+        goal = RegionTest(world.regions[sub.goal]) if sub.goal else None
+        headings = [heading_along(guide.centers[i:]) for i in range(guide.num_balls)]
+        tracker = ProgressTracker(guide)
+        legs.append(Leg(sub, guide, tracker, offset, sum(lengths[k + 1 :]), goal, headings))
+        offset += guide.num_balls
+    return legs
+
+
+def heading_along(path: np.ndarray) -> float:
+    """Yaw of the first non-degenerate segment of ``path`` (0 for a single point)."""
+    for p in path[1:]:
+        d = p - path[0]
+        if float(np.hypot(d[0], d[1])) > 1e-9:
+            return math.atan2(float(d[1]), float(d[0]))
+    return 0.0
+
+
+def nominal_speed(robot: Robot) -> float:
+    """The robot's top speed in m/s (``max_speed``; racecar: wheel speed times radius)."""
+    params = robot.params
+    if isinstance(params, RacecarParams):
+        return float(params.max_wheel_speed * WHEEL_RADIUS)
+    speed = getattr(params, "max_speed", None)
+    return float(speed) if isinstance(speed, int | float) and speed > 0 else 1.0
+
+
+def default_max_steps(legs: Sequence[Leg], robot: Robot, time_factor: float) -> int:
+    """``max(50, ceil(time_factor * L / (v dt)))``: see ``EnvOptions.max_steps``."""
+    length = sum(leg.guide.length for leg in legs)
+    return max(50, math.ceil(time_factor * length / (nominal_speed(robot) * robot.dt)))
+
+
+def _subtask(subtask: SubTask | int | None, plan: MissionPlan | None) -> SubTask:
+    if isinstance(subtask, SubTask):
+        return subtask
+    if subtask is None:
+        raise EnvConfigError("subtask", "this reward mode trains one sub-task: pass one")
+    if isinstance(subtask, int | np.integer) and not isinstance(subtask, bool):
+        if plan is None:
+            raise EnvConfigError("subtask", "a sub-task index needs plan=")
+        if not 0 <= subtask < len(plan.subtasks):
+            raise EnvConfigError(
+                "subtask", f"index {subtask} out of range: the plan has {len(plan.subtasks)}"
+            )
+        return plan.subtasks[int(subtask)]
+    raise EnvConfigError("subtask", f"expected a SubTask or an index, got {subtask!r}")
+
+
+def register_env() -> None:
+    """Register ``ltlnav/Nav-v0`` with Gymnasium (idempotent)."""
+    if ENV_ID not in gym.registry:
+        gym.register(id=ENV_ID, entry_point="envs.factory:make_env")
+
+
+register_env()

@@ -1,0 +1,430 @@
+"""The product-state navigation env: a robot drives one sub-task's guide (or the whole lasso).
+
+An episode starts at the sub-task's start (or, with the curriculum, at a random r-ball of its
+guide with the progress index set to match) and ends when
+
+* the robot crashes (``robot.collided()``: obstacle or out of bounds): terminated, ``R-``,
+  ``is_success`` False; this has first priority;
+* the judge of the reward mode says the goal is reached (the goal region contains the robot's
+  point; ``tl``/``g-rrt``: the automaton made the sub-task's transition(s)): terminated,
+  ``R++``, ``is_success`` True; an automaton violation ends like a crash;
+* optionally, no new r-ball was reached for ``stall_steps`` steps (see ``EnvOptions``);
+* the step limit is hit: truncated, ``is_success`` False.
+
+The progress index ``i_t`` and ``D_min`` come from ``planner.guidance.ProgressTracker``; the
+distance-to-go ``D_min`` (metres of guide left, counted from the guide's start before any ball)
+drives the ``rrt`` gain. ``g-rrt`` chains one guide per sub-task path into one course through
+the whole lasso: the progress index is global (offset of the current leg plus its local
+index), and the tracker moves to the next leg when the automaton completes the current leg's
+transition. The lasso returns to where its suffix starts, so a single ``Guide`` over the
+concatenated path would give the suffix's start the suffix end's ``D = 0``; tracking leg by leg
+keeps ``D`` meaningful along the cycle.
+
+``info`` on every step: ``is_success``, ``progress_index`` (global ``i_t``), ``d`` (``D(x_t)``,
+inf outside every ball), ``distance_to_go`` (``D_min``), ``collision``, ``violation``,
+``stalled``, ``stage`` (the current leg; sub-task order) and ``steps``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from envs.observation import ObservationBuilder, ObservationMode, RayCaster
+from envs.rewards import (
+    RUNNING,
+    SUCCESS,
+    VIOLATION,
+    AutomatonTracker,
+    EnvConfigError,
+    RegionLabeler,
+    RegionTest,
+    RewardConfig,
+    RewardMode,
+    Stage,
+)
+from envs.robots import Robot
+from planner.automaton import Buchi
+from planner.decompose import SubTask
+from planner.guidance import Guide, ProgressTracker
+from planner.world import World
+
+
+@dataclass(frozen=True)
+class EnvOptions:
+    """Options of the navigation env; every default is chosen for training the ``rrt`` mode."""
+
+    max_steps: int | None = None
+    """Step limit of an episode (truncation). None: ``max(50, ceil(time_factor * L / (v dt)))``
+    with ``L`` the guide length (every leg for ``g-rrt``), ``v`` the robot's top speed
+    (``max_speed``; racecar: ``max_wheel_speed`` times the wheel radius) and ``dt`` its agent
+    step: ``time_factor`` times the time to follow the guide at full speed."""
+    time_factor: float = 3.0
+    """Multiple of the guide-following time that sets the default ``max_steps``."""
+    observation: ObservationMode = "guided"
+    """``"guided"``: state, progress and the next ``lookahead`` ball centres (plus rays);
+    ``"paper"``: the bare product state ``(s_t, i_t)`` of the paper (plus rays)."""
+    lookahead: int = 3
+    """How many next r-ball centres the ``"guided"`` observation holds (0: none)."""
+    lookahead_range: float | None = None
+    """Scale of the ball offsets (clipped beyond it), metres. None: ``2 r (lookahead + 1)``."""
+    rays: int = 0
+    """Number of lidar-like rays in the observation (0: none)."""
+    ray_range: float | None = None
+    """Maximum ray range in metres. None: an eighth of the world's diagonal."""
+    curriculum: float = 0.0
+    """Probability that an episode starts at a uniformly drawn r-ball of the guide (not the
+    last) with the progress index set to it. Evaluation must pass 0."""
+    start_noise: float = 0.0
+    """Radius (m) of a uniform perturbation of the start position; a perturbed start stays
+    collision free and in the same regions as the nominal one (100 draws, else no noise)."""
+    heading_noise: float = 0.0
+    """Half-width (rad) of a uniform perturbation of the start heading (pi: any heading). The
+    nominal heading faces the guide, or is the mission's start heading at the mission start."""
+    stall_steps: int = 0
+    """End the episode after this many steps without a new r-ball (0: never)."""
+    stall_penalty: float | None = None
+    """Reward of a stall: None ends a stall as a truncation (value bootstrapped, no penalty);
+    a number ends it as a termination with that reward (a failure the critic learns)."""
+    r_ball: float | None = None
+    """Radius of the guide's r-balls. None: the plan's ``r_ball``, or the planner default
+    (a fortieth of the world's diagonal, ``eta / 2``) without a plan."""
+    rewards: RewardConfig = field(default_factory=RewardConfig)
+    """Reward constants over the mode's defaults (see ``envs.rewards``)."""
+
+    def __post_init__(self) -> None:
+        def need(ok: bool, name: str, rule: str) -> None:
+            if not ok:
+                raise EnvConfigError(f"options.{name}", f"{rule}, got {getattr(self, name)!r}")
+
+        def integer(name: str) -> bool:
+            value = getattr(self, name)
+            return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+        def number(name: str) -> bool:
+            value = getattr(self, name)
+            ok = isinstance(value, int | float | np.number) and not isinstance(value, bool)
+            return ok and math.isfinite(value)
+
+        need(self.max_steps is None or integer("max_steps"), "max_steps", "must be an integer")
+        need(self.max_steps is None or self.max_steps >= 1, "max_steps", "must be >= 1")
+        need(number("time_factor") and self.time_factor > 0, "time_factor", "must be > 0")
+        need(self.observation in ("guided", "paper"), "observation", "must be guided or paper")
+        need(integer("lookahead") and self.lookahead >= 0, "lookahead", "must be an integer >= 0")
+        need(integer("rays") and self.rays >= 0, "rays", "must be an integer >= 0")
+        for name in ("lookahead_range", "ray_range", "r_ball"):
+            value = getattr(self, name)
+            need(value is None or (number(name) and value > 0), name, "must be > 0")
+        need(number("curriculum") and 0 <= self.curriculum <= 1, "curriculum", "must be in [0, 1]")
+        need(number("start_noise") and self.start_noise >= 0, "start_noise", "must be >= 0")
+        need(
+            number("heading_noise") and 0 <= self.heading_noise <= math.pi,
+            "heading_noise",
+            "must be in [0, pi]",
+        )
+        need(integer("stall_steps") and self.stall_steps >= 0, "stall_steps", "must be >= 0")
+        need(
+            self.stall_penalty is None or number("stall_penalty"), "stall_penalty", "must be finite"
+        )
+        need(isinstance(self.rewards, RewardConfig), "rewards", "must be a RewardConfig")
+
+    @classmethod
+    def field_names(cls) -> tuple[str, ...]:
+        """Every option name (the keyword arguments ``make_env`` accepts)."""
+        return tuple(f.name for f in fields(cls))
+
+
+@dataclass(eq=False)
+class Leg:
+    """One sub-task path of the course: its guide and tracker, where its balls start in the
+    global progress index, and how much guide follows it."""
+
+    subtask: SubTask
+    guide: Guide
+    tracker: ProgressTracker
+    offset: int
+    """Global progress index of the leg's first ball."""
+    rest: float
+    """Guide length of the legs after this one."""
+    goal: RegionTest | None
+    """The goal region (None: the end of the guide)."""
+    headings: list[float]
+    """Yaw from each ball's centre toward the guide ahead (curriculum starts)."""
+
+
+class NavEnv(gym.Env[np.ndarray, np.ndarray]):
+    """A robot in a world following r-ball guides under a reward mode; build with
+    ``envs.make_env``. See the module docstring for episodes and ``envs.observation`` for the
+    observation layout. Actions are the robot's, in ``[-1, 1]^action_dim``; an action of the
+    wrong shape or outside that box raises ``ValueError`` (never clipped)."""
+
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 10}  # noqa: RUF012
+
+    def __init__(
+        self,
+        world: World,
+        robot: Robot,
+        legs: Sequence[Leg],
+        mode: RewardMode,
+        options: EnvOptions,
+        *,
+        max_steps: int,
+        start_heading: float,
+        nba: Buchi | None = None,
+        render_mode: str | None = None,
+        owns_robot: bool = True,
+    ) -> None:
+        if render_mode not in (None, "rgb_array"):
+            raise EnvConfigError("render_mode", f"must be None or 'rgb_array', got {render_mode!r}")
+        if robot.workspace_dim != world.dim:
+            raise EnvConfigError(
+                "robot", f"the robot moves in {robot.workspace_dim}D but the world is {world.dim}D"
+            )
+        if not legs:
+            raise EnvConfigError("subtask", "no sub-task to drive")
+        if mode.automaton and nba is None:
+            raise EnvConfigError("plan", f"reward mode {mode.name!r} needs the mission plan")
+        self.world, self.robot, self.mode, self.options = world, robot, mode, options
+        self.render_mode = render_mode
+        self._owns_robot = owns_robot
+        self.legs = list(legs)
+        self.num_balls = sum(leg.guide.num_balls for leg in self.legs)
+        self.guide_length = sum(leg.guide.length for leg in self.legs)
+        self._labeler = RegionLabeler(
+            world.region_names, [world.regions[n] for n in world.region_names]
+        )
+        self._automaton: AutomatonTracker | None = None
+        if mode.automaton and nba is not None:
+            stages = [
+                Stage(leg.subtask.nba_state, leg.subtask.next_nba_state, leg.subtask.goal)
+                for leg in self.legs
+            ]
+            self._automaton = AutomatonTracker(nba, stages)
+        first = self.legs[0]
+        mode.bind_goal(first.goal, first.guide.centers[-1].tolist())
+        self.start = np.asarray(first.subtask.start, dtype=float).copy()
+        self.start_heading = float(start_heading)
+        centers = np.concatenate([leg.guide.centers for leg in self.legs])
+        self._centers = centers
+        self.ray_caster: RayCaster | None = None
+        if options.rays:
+            rng_ = options.ray_range if options.ray_range is not None else world.diagonal / 8.0
+            self.ray_caster = RayCaster(world, options.rays, rng_)
+        r_ball = first.guide.r
+        look = options.lookahead_range or 2.0 * r_ball * (options.lookahead + 1)
+        self._obs = ObservationBuilder(
+            robot, centers, options.observation, options.lookahead, look, self.ray_caster
+        )
+        self.observation_space = self._obs.space
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(robot.action_dim,), dtype=np.float32)
+        self.max_steps = int(max_steps)
+        self._leg = first
+        self._leg_k = 0
+        self._t = 0
+        self._since = 0
+        self._togo = first.guide.length + first.rest
+        self._index = -1
+        self.trail: list[list[float]] = []
+        """Workspace points visited in this episode (recorded only for rendering)."""
+
+    # ------------------------------------------------------------------------------ episode
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Start an episode. ``options`` (all optional): ``position`` and ``heading`` (an
+        explicit start, no curriculum or noise), or ``keep_robot=True`` (track from where the
+        robot stands, without resetting it: hand-over between sub-task envs sharing a robot)."""
+        super().reset(seed=seed)
+        rng = self.np_random
+        opts = dict(options or {})
+        unknown = set(opts) - {"position", "heading", "keep_robot"}
+        if unknown:
+            raise ValueError(
+                f"unknown reset options {sorted(unknown)}; known: position, heading, keep_robot"
+            )
+        leg_k, ball = 0, -1
+        if opts.get("keep_robot"):
+            start = self.robot.position()
+        elif "position" in opts:
+            start = np.asarray(opts["position"], dtype=float)
+            heading = opts.get("heading")
+            self.robot.reset(start, rng, None if heading is None else float(heading))
+        else:
+            o = self.options
+            if o.curriculum > 0 and rng.random() < o.curriculum and self.num_balls > 1:
+                leg_k, ball = self._leg_of(int(rng.integers(0, self.num_balls - 1)))
+                start = self.legs[leg_k].guide.centers[ball].copy()
+                heading = self.legs[leg_k].headings[ball]
+                keep: frozenset[str] | None = None
+            else:
+                start, heading = self.start.copy(), self.start_heading
+                keep = self._labeler.labels(start.tolist())
+            if o.start_noise > 0:
+                start = self._perturb(start, keep, rng)
+            if o.heading_noise > 0:
+                heading += float(rng.uniform(-o.heading_noise, o.heading_noise))
+            self.robot.reset(start, rng, heading)
+        x = self.robot.position().tolist()
+        self._enter_leg(leg_k, x, ball)
+        if self._automaton is not None:
+            self._automaton.reset(leg_k)
+        self._t = 0
+        self._since = 0
+        self.trail = [x] if self.render_mode is not None else []
+        obs = self._obs.build(self.robot.observation(), x, self._index)
+        i = self._leg.guide.locate(x)
+        d = float(self._leg.guide.dist_to_go[i]) if i >= 0 else math.inf
+        return obs, self._info(d, False, self.robot.collided(), False, False)
+
+    def _leg_of(self, ball: int) -> tuple[int, int]:
+        for k, leg in enumerate(self.legs):
+            if ball < leg.offset + leg.guide.num_balls:
+                return k, ball - leg.offset
+        raise AssertionError("ball index beyond the course")
+
+    def _enter_leg(self, k: int, x: list[float], ball: int = -1) -> None:
+        """Track leg ``k`` from point ``x``; ``ball`` >= 0 is a curriculum start ball."""
+        leg = self.legs[k]
+        self._leg, self._leg_k = leg, k
+        located = leg.guide.locate(x)
+        index = max(ball, located)
+        if index >= 0:
+            leg.tracker.reset(0, start_index=index)
+            self._togo = leg.rest + float(leg.guide.dist_to_go[index])
+        else:
+            leg.tracker.reset(0)
+            self._togo = leg.rest + leg.guide.length
+        self._index = leg.offset + index
+        self.mode.bind_goal(leg.goal, leg.guide.centers[-1].tolist())
+
+    def _perturb(
+        self, start: np.ndarray, keep: frozenset[str] | None, rng: np.random.Generator
+    ) -> np.ndarray:
+        d, radius = self.world.dim, self.options.start_noise
+        lo, hi = self.world.bounds[:, 0], self.world.bounds[:, 1]
+        for _ in range(100):
+            u = rng.normal(size=d)
+            u *= radius * rng.uniform() ** (1.0 / d) / max(float(np.linalg.norm(u)), 1e-12)
+            p = start + u
+            if np.any(p < lo) or np.any(p > hi):
+                continue
+            if self.world.in_collision(p[None, :], self.robot.radius)[0]:
+                continue
+            if keep is not None and self._labeler.labels(p.tolist()) != keep:
+                continue
+            return p
+        return start
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        robot = self.robot
+        robot.step(action)
+        self._t += 1
+        raw = robot.observation()
+        x = robot.position().tolist()
+        leg = self._leg
+        improved, local, d = leg.tracker.update_one(0, x)
+        togo = self._togo
+        if improved:
+            self._togo = leg.rest + d
+            self._since = 0
+        else:
+            self._since += 1
+        self._index = leg.offset + local
+        if self.render_mode is not None:
+            self.trail.append(x)
+        terminated = truncated = success = violation = stalled = False
+        crashed = robot.collided()
+        if crashed:
+            reward, terminated = self.mode.crash, True
+        else:
+            if self._automaton is None:
+                goal = leg.goal
+                reached = goal.contains(x) if goal is not None else d == 0.0
+                outcome = SUCCESS if reached else RUNNING
+            else:
+                outcome = self._automaton_outcome(x, d)
+            if outcome == RUNNING:
+                # togo - _togo: the metres gained, including a move to the next leg (g-rrt).
+                reward = self.mode.step_reward(improved, togo - self._togo, x)
+                if self._t >= self.max_steps:
+                    truncated = True
+                stall = self.options.stall_steps
+                if stall and self._since >= stall:
+                    stalled = True
+                    if self.options.stall_penalty is None:
+                        truncated = True
+                    else:
+                        reward, terminated = self.options.stall_penalty, True
+            elif outcome == SUCCESS:
+                reward, terminated, success = self.mode.goal, True, True
+            else:
+                reward, terminated, violation = self.mode.crash, True, True
+        obs = self._obs.build(raw, x, self._index)
+        return (
+            obs,
+            reward,
+            terminated,
+            truncated,
+            self._info(d, success, crashed, violation, stalled),
+        )
+
+    def _automaton_outcome(self, x: list[float], d: float) -> int:
+        """Feed ``L(x)`` to the automaton: RUNNING (moving on to the next leg when a stage
+        completes), SUCCESS after the last stage, or VIOLATION."""
+        tracker = self._automaton
+        assert tracker is not None
+        moved = tracker.read(self._labeler.labels(x), d == 0.0)
+        if moved < 0:
+            return VIOLATION
+        if moved == 0:
+            return RUNNING
+        if tracker.done:
+            return SUCCESS
+        self._enter_leg(tracker.stage, x)
+        return RUNNING
+
+    def _info(
+        self, d: float, success: bool, crashed: bool, violation: bool, stalled: bool
+    ) -> dict[str, Any]:
+        return {
+            "is_success": success,
+            "progress_index": self._index,
+            "d": d,
+            "distance_to_go": self._togo,
+            "collision": crashed,
+            "violation": violation,
+            "stalled": stalled,
+            "stage": self._leg_k,
+            "steps": self._t,
+        }
+
+    @property
+    def progress_index(self) -> int:
+        """The global progress index ``i_t`` (-1 before the first ball)."""
+        return self._index
+
+    @property
+    def steps(self) -> int:
+        """Steps taken in the current episode."""
+        return self._t
+
+    # ------------------------------------------------------------------------------ output
+    def render(self) -> np.ndarray | None:
+        """An RGB image (H, W, 3) of the world, guide, r-balls, trail and robot."""
+        if self.render_mode != "rgb_array":
+            return None
+        from envs.render import render_frame
+
+        return render_frame(self)
+
+    def close(self) -> None:
+        """Release the robot's simulator (unless the robot is shared with another env)."""
+        if self._owns_robot:
+            self.robot.close()
+        super().close()
