@@ -1,0 +1,198 @@
+"""Language-preserving reductions of Büchi automata with cube-labelled transitions.
+
+Gastin and Oddoux merge equivalent states and drop dominated transitions. We do the same
+with direct simulation, which subsumes both: a state ``p`` is simulated by ``p'`` when
+``p'`` is accepting whenever ``p`` is and can answer every transition of ``p`` with a
+transition to a state that again simulates the target. Then
+
+- mutually simulating states are merged (quotient), and
+- a cube to ``p`` is dropped when transitions of the same source to states strictly
+  simulating ``p`` cover it ("little brothers", Bustan and Grumberg 2003),
+
+and finally states that are unreachable or cannot reach an accepting cycle go.
+"""
+
+from __future__ import annotations
+
+from planner.gba import RawBuchi, add_cube
+from planner.guard import Cube, covers
+
+
+def reduce_buchi(ba: RawBuchi) -> RawBuchi:
+    """Apply trimming, simulation quotient and little-brother pruning until stable."""
+    ba = trim(merge_identical(trim(ba)))
+    while True:
+        size = (ba.num_states, _num_cubes(ba))
+        sim = simulation(ba)
+        ba = trim(quotient(ba, sim))
+        ba = trim(prune_little_brothers(ba, simulation(ba)))
+        if (ba.num_states, _num_cubes(ba)) == size:
+            return ba
+
+
+def _num_cubes(ba: RawBuchi) -> int:
+    return sum(len(cubes) for out in ba.edges.values() for cubes in out.values())
+
+
+def simulation(ba: RawBuchi) -> list[set[int]]:
+    """``sim[p]``: the states that directly simulate ``p`` (``p`` itself included).
+
+    Greatest fixpoint by a worklist: a state is re-examined only when the simulators of
+    one of its successors shrink.
+    """
+    n = ba.num_states
+    flat = [[(t, c) for t, cubes in ba.edges.get(p, {}).items() for c in cubes] for p in range(n)]
+    pred: list[set[int]] = [set() for _ in range(n)]
+    for p in range(n):
+        for t, _ in flat[p]:
+            pred[t].add(p)
+    sim = [{q for q in range(n) if p not in ba.accepting or q in ba.accepting} for p in range(n)]
+    queue = list(range(n))
+    queued = set(queue)
+    while queue:
+        p = queue.pop()
+        queued.discard(p)
+        removed = {q for q in sim[p] if q != p and not _answers(flat[p], flat[q], sim)}
+        if removed:
+            sim[p] -= removed
+            for r in pred[p]:
+                if r not in queued:
+                    queued.add(r)
+                    queue.append(r)
+    return sim
+
+
+def _answers(
+    p_out: list[tuple[int, Cube]], q_out: list[tuple[int, Cube]], sim: list[set[int]]
+) -> bool:
+    """Whether ``q`` can answer every transition of ``p`` with one into a simulating target."""
+    for target, cube in p_out:
+        simulators = sim[target]
+        answers = [c for t, c in q_out if t in simulators]
+        if any(cube.implies(c) for c in answers):
+            continue
+        if not covers(answers, cube):
+            return False
+    return True
+
+
+def quotient(ba: RawBuchi, sim: list[set[int]]) -> RawBuchi:
+    """Merge classes of mutually simulating states, keeping the lowest id of each class."""
+    n = ba.num_states
+    rep = list(range(n))
+    for p in range(n):
+        for q in sorted(sim[p]):
+            if q < rep[p] and p in sim[q]:
+                rep[p] = q
+    if all(rep[p] == p for p in range(n)):
+        return ba
+    edges: dict[int, dict[int, list[Cube]]] = {}
+    for p, out in ba.edges.items():
+        merged = edges.setdefault(rep[p], {})
+        for target, cubes in out.items():
+            bucket = merged.setdefault(rep[target], [])
+            for cube in cubes:
+                add_cube(bucket, cube)
+    accepting = {rep[p] for p in ba.accepting}
+    return RawBuchi(rep[ba.initial], accepting, edges, list(ba.names))
+
+
+def prune_little_brothers(ba: RawBuchi, sim: list[set[int]]) -> RawBuchi:
+    """Drop cubes covered by transitions of the same state to strictly better targets."""
+    edges: dict[int, dict[int, list[Cube]]] = {}
+    for p, out in ba.edges.items():
+        kept: dict[int, list[Cube]] = {}
+        for target, cubes in out.items():
+            better = [
+                c
+                for t, cs in out.items()
+                if t != target and t in sim[target] and target not in sim[t]
+                for c in cs
+            ]
+            remaining = [c for c in cubes if not covers(better, c)]
+            if remaining:
+                kept[target] = remaining
+        edges[p] = kept
+    return RawBuchi(ba.initial, set(ba.accepting), edges, list(ba.names))
+
+
+def trim(ba: RawBuchi) -> RawBuchi:
+    """Keep the states reachable from the initial state that can reach an accepting cycle.
+
+    The initial state is always kept, possibly without transitions (empty language).
+    Surviving states are renumbered in breadth-first order from the initial state.
+    """
+    succ = {p: [t for t in out if out[t]] for p, out in ba.edges.items()}
+    reach = _reachable([ba.initial], succ)
+    good = {
+        p
+        for p in ba.accepting
+        if p in reach and p in _reachable([t for t in succ.get(p, [])], succ)
+    }
+    pred: dict[int, list[int]] = {}
+    for p in reach:
+        for t in succ.get(p, []):
+            pred.setdefault(t, []).append(p)
+    useful = _reachable(sorted(good), pred) & reach
+    order = [p for p in _bfs_order(ba.initial, succ) if p in useful or p == ba.initial]
+    new_id = {p: i for i, p in enumerate(order)}
+    edges: dict[int, dict[int, list[Cube]]] = {}
+    for p in order:
+        edges[new_id[p]] = {
+            new_id[t]: list(cs) for t, cs in ba.edges.get(p, {}).items() if t in new_id and cs
+        }
+    accepting = {new_id[p] for p in ba.accepting if p in new_id}
+    names = [ba.names[p] for p in order]
+    return RawBuchi(0, accepting, edges, names)
+
+
+def _reachable(starts: list[int], succ: dict[int, list[int]]) -> set[int]:
+    seen = set(starts)
+    stack = list(starts)
+    while stack:
+        for t in succ.get(stack.pop(), []):
+            if t not in seen:
+                seen.add(t)
+                stack.append(t)
+    return seen
+
+
+def _bfs_order(start: int, succ: dict[int, list[int]]) -> list[int]:
+    order = [start]
+    seen = {start}
+    i = 0
+    while i < len(order):
+        for t in sorted(succ.get(order[i], [])):
+            if t not in seen:
+                seen.add(t)
+                order.append(t)
+        i += 1
+    return order
+
+
+def merge_identical(ba: RawBuchi) -> RawBuchi:
+    """Merge states with the same acceptance and the same guards to the same classes.
+
+    This is the coarsest such partition (computed by refinement); it is cheap and shrinks
+    the automaton before the quadratic simulation computation.
+    """
+    n = ba.num_states
+    block = [1 if p in ba.accepting else 0 for p in range(n)]
+    while True:
+        signatures: dict[object, int] = {}
+        new_block = []
+        for p in range(n):
+            out: dict[int, list[Cube]] = {}
+            for target, cubes in ba.edges.get(p, {}).items():
+                bucket = out.setdefault(block[target], [])
+                for cube in cubes:
+                    add_cube(bucket, cube)
+            sig = (block[p], frozenset((b, frozenset(cs)) for b, cs in out.items()))
+            new_block.append(signatures.setdefault(sig, len(signatures)))
+        if len(signatures) == len(set(block)):
+            break
+        block = new_block
+    members: dict[int, set[int]] = {}
+    for p in range(n):
+        members.setdefault(block[p], set()).add(p)
+    return quotient(ba, [members[block[p]] for p in range(n)])

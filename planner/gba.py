@@ -1,0 +1,164 @@
+"""From a VWAA to a Büchi automaton through a symbolic generalized Büchi automaton.
+
+Gastin and Oddoux build the GBA whose states are sets ``e`` of VWAA states; a GBA
+transition picks one VWAA transition per state of ``e`` and conjoins them. With one
+acceptance set per final VWAA state ``f``, a transition is in the set of ``f`` unless it
+keeps ``f`` pending: ``f`` is in the target and was either newly created or stayed by an
+unmarked transition. The degeneralized Büchi automaton has states ``(e, level)``; level
+``j`` has seen the acceptance sets ``1..j`` of the current round and level ``r`` is
+accepting.
+
+The GBA is never materialised: a conjunction of k ``G F`` formulas has 2^k GBA
+transitions per state. Instead, for each Büchi state ``(e, level)`` a dynamic program
+walks the states of ``e`` in the order of their acceptance sets and merges partial
+products that agree on (successor set so far, first acceptance set missed so far). The
+guards of merged partial products are unions of cubes, kept irredundant, so a cube like
+``g1 & g2`` absorbs the ``g1 & g2 & g3`` of a transition that also satisfies ``g3``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from planner.guard import Cube, covers
+from planner.vwaa import Vwaa
+
+BaState = tuple[frozenset[int], int]
+
+
+@dataclass
+class RawBuchi:
+    """A Büchi automaton under construction: ``edges[source][target]`` lists cubes."""
+
+    initial: int
+    accepting: set[int]
+    edges: dict[int, dict[int, list[Cube]]]
+    names: list[str] = field(default_factory=list)
+
+    @property
+    def num_states(self) -> int:
+        """Number of states."""
+        return len(self.names)
+
+
+def add_cube(cubes: list[Cube], cube: Cube) -> None:
+    """Add ``cube`` to the disjunction ``cubes``, keeping no cube that implies another."""
+    for other in cubes:
+        if cube.implies(other):
+            return
+    cubes[:] = [c for c in cubes if not c.implies(cube)]
+    cubes.append(cube)
+
+
+class Degeneralizer:
+    """Explores the degeneralized Büchi automaton of a VWAA from its initial states."""
+
+    def __init__(self, vwaa: Vwaa) -> None:
+        self.vwaa = vwaa
+        self.r = len(vwaa.finals)
+        self.acc_index = {f: i + 1 for i, f in enumerate(vwaa.finals)}
+
+    def successors(self, e: frozenset[int], level: int) -> dict[BaState, list[Cube]]:
+        """The outgoing transitions of Büchi state ``(e, level)``, by target state."""
+        start = level if level < self.r else 0
+        none_missed = self.r - start
+
+        def rank(q: int) -> int | None:
+            index = self.acc_index.get(q)
+            return None if index is None or index <= start else index - start - 1
+
+        ordered = sorted(e, key=lambda q: (rank(q) is not None, rank(q) or 0, q))
+        partial: dict[tuple[frozenset[int], int], list[Cube]] = {
+            (frozenset(), none_missed): [Cube.TRUE]
+        }
+        for q in ordered:
+            q_rank = rank(q)
+            grown: dict[tuple[frozenset[int], int], list[Cube]] = {}
+            for (targets, missed), cubes in partial.items():
+                for move in self.vwaa.moves[q]:
+                    new_missed = missed
+                    if q_rank is not None and not move.marked and q_rank < missed:
+                        new_missed = q_rank
+                    key = (targets | move.targets, new_missed)
+                    for cube in cubes:
+                        joined = cube.conjoin(move.cube)
+                        if joined is not None:
+                            add_cube(grown.setdefault(key, []), joined)
+            partial = grown
+        out: dict[BaState, list[Cube]] = {}
+        for (targets, missed), cubes in partial.items():
+            for f in targets - e:
+                f_rank = rank(f)
+                if f_rank is not None and f_rank < missed:
+                    missed = f_rank
+            bucket = out.setdefault((targets, start + missed), [])
+            for cube in cubes:
+                add_cube(bucket, cube)
+        return self._prune_dominated(out)
+
+    def _prune_dominated(self, out: dict[BaState, list[Cube]]) -> dict[BaState, list[Cube]]:
+        """Drop cubes whose letters also lead to a state that directly simulates the target.
+
+        ``(e', j')`` simulates ``(e, j)`` when ``e'`` drops only obligations from which no
+        final state is reachable (so no acceptance set can get worse) and ``j <= j' < r``
+        or ``j = j' = r``. Removing such "little brothers" preserves the language.
+        """
+        pruned: dict[BaState, list[Cube]] = {}
+        for key, cubes in out.items():
+            targets, level = key
+            better = [
+                c
+                for (other, other_level), other_cubes in out.items()
+                if (other, other_level) != key
+                and other <= targets
+                and targets - other <= self.vwaa.final_free
+                and (level <= other_level < self.r or level == other_level == self.r)
+                for c in other_cubes
+            ]
+            kept = [c for c in cubes if not covers(better, c)] if better else cubes
+            if kept:
+                pruned[key] = kept
+        return pruned
+
+    def build(self) -> RawBuchi:
+        """The reachable part of the degeneralized automaton."""
+        ids: dict[BaState, int] = {}
+        names: list[str] = []
+        todo: list[BaState] = []
+
+        def state_id(s: BaState) -> int:
+            if s not in ids:
+                ids[s] = len(names)
+                names.append(self._name(s))
+                todo.append(s)
+            return ids[s]
+
+        edges: dict[int, dict[int, list[Cube]]] = {}
+        initial_sets = self.vwaa.initial
+        if len(initial_sets) == 1:
+            initial = state_id((initial_sets[0], 0))
+        else:
+            initial = len(names)
+            names.append("init")
+            merged: dict[int, list[Cube]] = {}
+            for e in initial_sets:
+                for target, cubes in self.successors(e, 0).items():
+                    bucket = merged.setdefault(state_id(target), [])
+                    for cube in cubes:
+                        add_cube(bucket, cube)
+            edges[initial] = merged
+        while todo:
+            s = todo.pop()
+            out: dict[int, list[Cube]] = {}
+            for target, cubes in self.successors(*s).items():
+                out[state_id(target)] = cubes
+            edges[ids[s]] = out
+        accepting = {i for s, i in ids.items() if s[1] == self.r}
+        if self.r == 0 and len(initial_sets) != 1:
+            accepting.add(initial)
+        return RawBuchi(initial, accepting, edges, names)
+
+    def _name(self, s: BaState) -> str:
+        e, level = s
+        body = " & ".join(sorted(self.vwaa.name(q) for q in e)) or "true"
+        return f"{{{body}}}/{level}"

@@ -1,0 +1,197 @@
+"""Language-preserving rewriting of LTL formulas in negation normal form.
+
+Applied before translation because a smaller formula gives a smaller alternating
+automaton. The rules are the classic ones of ltl2ba, Etessami–Holzmann and
+Somenzi–Bloem (``F F a = F a``, ``true U a = F a``, ``G (a & b) = G a & G b``, ...).
+Conjunctions such as ``G F a & G F b`` are deliberately kept apart: the translator gives
+each ``G F`` its own acceptance condition, which is what keeps them cheap.
+"""
+
+from __future__ import annotations
+
+from planner.ltl import (
+    FALSE,
+    TRUE,
+    And,
+    Const,
+    Eventually,
+    Formula,
+    Globally,
+    Next,
+    Not,
+    Or,
+    Prop,
+    Release,
+    Until,
+    WeakUntil,
+)
+
+
+def simplify(f: Formula) -> Formula:
+    """Rewrite the NNF formula ``f`` bottom-up until no rule applies."""
+    previous = None
+    while previous != f:
+        previous = f
+        f = _rewrite(f)
+    return f
+
+
+def _rewrite(f: Formula) -> Formula:
+    if isinstance(f, Const | Prop | Not):
+        return f
+    if isinstance(f, And | Or):
+        return _junction(f)
+    if isinstance(f, Next):
+        return _next(_rewrite(f.arg))
+    if isinstance(f, Eventually):
+        return _eventually(_rewrite(f.arg))
+    if isinstance(f, Globally):
+        return _globally(_rewrite(f.arg))
+    assert isinstance(f, Until | Release | WeakUntil)
+    left, right = _rewrite(f.left), _rewrite(f.right)
+    if isinstance(f, Until):
+        return _until(left, right)
+    if isinstance(f, Release):
+        return _release(left, right)
+    return _weak_until(left, right)
+
+
+def _next(a: Formula) -> Formula:
+    return a if isinstance(a, Const) else Next(a)
+
+
+def _eventually(a: Formula) -> Formula:
+    if isinstance(a, Const | Eventually):
+        return a
+    if isinstance(a, Globally) and isinstance(a.arg, Eventually):
+        return a  # F G F a = G F a
+    if isinstance(a, Next):
+        return Next(_eventually(a.arg))
+    if isinstance(a, Until):
+        return _eventually(a.right)
+    return Eventually(a)
+
+
+def _globally(a: Formula) -> Formula:
+    if isinstance(a, Const | Globally):
+        return a
+    if isinstance(a, Eventually) and isinstance(a.arg, Globally):
+        return a  # G F G a = F G a
+    if isinstance(a, And):
+        return And(_globally(a.left), _globally(a.right))
+    if isinstance(a, Next):
+        return Next(_globally(a.arg))
+    if isinstance(a, Release):
+        return _globally(a.right)
+    return Globally(a)
+
+
+def _until(a: Formula, b: Formula) -> Formula:
+    if isinstance(b, Const) or a in (b, FALSE):
+        return b
+    if a == TRUE or isinstance(b, Eventually):
+        return _eventually(b)
+    if isinstance(a, Next) and isinstance(b, Next):
+        return Next(_until(a.arg, b.arg))
+    return Until(a, b)
+
+
+def _release(a: Formula, b: Formula) -> Formula:
+    if isinstance(b, Const) or a in (b, TRUE):
+        return b
+    if a == FALSE or isinstance(b, Globally):
+        return _globally(b)
+    if isinstance(a, Next) and isinstance(b, Next):
+        return Next(_release(a.arg, b.arg))
+    return Release(a, b)
+
+
+def _weak_until(a: Formula, b: Formula) -> Formula:
+    if b == TRUE or a == TRUE:
+        return TRUE
+    if a in (FALSE, b):
+        return b
+    if b == FALSE:
+        return _globally(a)
+    return WeakUntil(a, b)
+
+
+def _operands(f: Formula, kind: type[And] | type[Or]) -> list[Formula]:
+    if isinstance(f, kind):
+        return _operands(f.left, kind) + _operands(f.right, kind)
+    return [f]
+
+
+def _complement(f: Formula) -> Formula | None:
+    if isinstance(f, Prop):
+        return Not(f)
+    if isinstance(f, Not):
+        return f.arg
+    return None
+
+
+def _junction(f: And | Or) -> Formula:
+    """Flatten, deduplicate and simplify an n-ary conjunction or disjunction."""
+    kind: type[And] | type[Or] = And if isinstance(f, And) else Or
+    unit, zero = (TRUE, FALSE) if kind is And else (FALSE, TRUE)
+    items: list[Formula] = []
+    for part in _operands(f, kind):
+        for sub in _operands(_rewrite(part), kind):
+            if sub == zero:
+                return zero
+            if sub != unit and sub not in items:
+                items.append(sub)
+    if any(_complement(x) in items for x in items):
+        return zero
+    items = _merge_pairs(items, kind)
+    if not items:
+        return unit
+    out = items[0]
+    for item in items[1:]:
+        out = kind(out, item)
+    return out
+
+
+def _merge_pairs(items: list[Formula], kind: type[And] | type[Or]) -> list[Formula]:
+    """Merge operand pairs that share structure, e.g. ``(a U c) | (b U c) = (a | b) U c``."""
+    merged = True
+    while merged:
+        merged = False
+        for i, x in enumerate(items):
+            for j in range(i + 1, len(items)):
+                combined = _merge(x, items[j], kind)
+                if combined is not None:
+                    items = [*items[:i], combined, *items[i + 1 : j], *items[j + 1 :]]
+                    merged = True
+                    break
+            if merged:
+                break
+    return items
+
+
+def _merge(x: Formula, y: Formula, kind: type[And] | type[Or]) -> Formula | None:
+    conj = kind is And
+    if isinstance(x, Next) and isinstance(y, Next):
+        return Next(kind(x.arg, y.arg))
+    if isinstance(x, Until) and isinstance(y, Until):
+        if conj and x.right == y.right:
+            return Until(And(x.left, y.left), x.right)
+        if not conj and x.left == y.left:
+            return Until(x.left, Or(x.right, y.right))
+    if isinstance(x, Release) and isinstance(y, Release):
+        if conj and x.left == y.left:
+            return Release(x.left, And(x.right, y.right))
+        if not conj and x.right == y.right:
+            return Release(Or(x.left, y.left), x.right)
+    if not conj and _is_gf(x) and _is_gf(y):
+        return Globally(Eventually(Or(_inner(x), _inner(y))))
+    return None
+
+
+def _is_gf(f: Formula) -> bool:
+    return isinstance(f, Globally) and isinstance(f.arg, Eventually)
+
+
+def _inner(f: Formula) -> Formula:
+    assert isinstance(f, Globally) and isinstance(f.arg, Eventually)
+    return f.arg.arg

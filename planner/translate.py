@@ -1,0 +1,56 @@
+"""LTL to Büchi automaton translation (Gastin and Oddoux, CAV 2001, with symbolic guards).
+
+Pipeline: parse -> negation normal form -> rewriting (:mod:`planner.ltl_rewrite`) ->
+very weak alternating automaton (:mod:`planner.vwaa`) -> degeneralized Büchi automaton
+through an implicit generalized Büchi automaton (:mod:`planner.gba`) -> simulation-based
+reduction (:mod:`planner.ba_reduce`). Guards stay DNF cubes throughout; no step enumerates
+the 2^|AP| letters.
+"""
+
+from __future__ import annotations
+
+from planner.automaton import Buchi, Edge
+from planner.ba_reduce import reduce_buchi
+from planner.gba import Degeneralizer, RawBuchi
+from planner.guard import Guard
+from planner.ltl import Formula, atoms, parse, to_nnf
+from planner.ltl_rewrite import simplify
+from planner.vwaa import build_vwaa
+
+
+def translate(formula: Formula | str) -> Buchi:
+    """The Büchi automaton accepting exactly the infinite words that satisfy ``formula``.
+
+    ``formula`` may be a parsed formula or text in spin or letter syntax (a syntax error
+    raises :class:`~planner.errors.FormulaError`). The automaton's atoms are all atoms of
+    the formula, sorted, even those the rewriting made irrelevant.
+    """
+    f = parse(formula) if isinstance(formula, str) else formula
+    nnf = simplify(to_nnf(f))
+    raw = Degeneralizer(build_vwaa(nnf)).build()
+    return to_buchi(reduce_buchi(raw), tuple(sorted(atoms(f))))
+
+
+def to_buchi(raw: RawBuchi, atom_names: tuple[str, ...]) -> Buchi:
+    """Freeze a constructed automaton, naming states in the style of spin never claims.
+
+    The initial state is ``init`` (``accept_init`` when accepting); the others are
+    ``S<i>`` or ``accept_S<i>``. ``raw`` must be trimmed (initial state 0).
+    """
+    names = []
+    for q in range(raw.num_states):
+        base = "init" if q == raw.initial else f"S{q}"
+        names.append(f"accept_{base}" if q in raw.accepting else base)
+    edges = tuple(
+        Edge(source, Guard.of(cubes), target)
+        for source in sorted(raw.edges)
+        for target, cubes in sorted(raw.edges[source].items())
+        if cubes
+    )
+    return Buchi(
+        atoms=atom_names,
+        state_names=tuple(names),
+        initial=raw.initial,
+        accepting=frozenset(raw.accepting),
+        edges=edges,
+    )

@@ -1,0 +1,226 @@
+"""Very weak alternating automata (VWAA) from LTL, after Gastin and Oddoux (CAV 2001).
+
+A VWAA state is a subformula; its transitions are pairs ``(cube, conjunction of
+successor states)``. The translation is the paper's ``Δ``:
+
+- ``Δ(a U b) = Δ(b) ∪ (Δ(a) ⊗ {(true, {a U b})})``
+- ``Δ(a R b) = Δ(b) ⊗ (Δ(a) ∪ {(true, {a R b})})``
+- ``Δ(X a) = {(true, e) | e ∈ ā}`` where ``ā`` is the DNF of ``a`` over states,
+
+with ``⊗`` the pairwise conjunction and only minimal transitions kept (a transition with
+a stronger cube and more successors than another is dropped).
+
+Acceptance is on transitions, as in LTL3BA (Babiak et al., TACAS 2012): a *final* state
+must not be stayed in forever along a branch unless infinitely many of the transitions it
+takes there are marked. ``a U b`` marks the transitions that leave it. ``G F a`` is its
+own final state with ``δ(G F a) = marked(Δ(a) ⊗ {G F a}) ∪ {(true, {G F a})}``; without
+this, a conjunction of k ``G F`` formulas yields 2^k intermediate automaton states.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from planner.guard import Cube
+from planner.ltl import (
+    And,
+    Const,
+    Eventually,
+    Formula,
+    Globally,
+    Next,
+    Not,
+    Or,
+    Prop,
+    Release,
+    Until,
+    WeakUntil,
+)
+
+Term = tuple[Cube, frozenset[int]]
+
+
+@dataclass(frozen=True)
+class Move:
+    """One VWAA transition of a state: read a letter in ``cube``, go to all of ``targets``.
+
+    ``marked`` matters only for final states: it says the transition discharges the
+    state's obligation.
+    """
+
+    cube: Cube
+    targets: frozenset[int]
+    marked: bool
+
+
+@dataclass
+class Vwaa:
+    """The VWAA of one NNF formula, built lazily from its initial state sets."""
+
+    formulas: list[Formula] = field(default_factory=list)
+    index: dict[Formula, int] = field(default_factory=dict)
+    moves: dict[int, tuple[Move, ...]] = field(default_factory=dict)
+    initial: list[frozenset[int]] = field(default_factory=list)
+    finals: list[int] = field(default_factory=list)
+    final_free: frozenset[int] = frozenset()
+
+    def name(self, q: int) -> str:
+        """A readable name of state ``q`` (its formula)."""
+        from planner.ltl import to_text
+
+        return to_text(self.formulas[q])
+
+
+def build_vwaa(nnf: Formula) -> Vwaa:
+    """The VWAA of ``nnf`` (negation normal form, ``W`` allowed), with every reachable state.
+
+    ``finals`` lists the final states in order of creation, outermost subformulas first;
+    that order is the order of the acceptance sets after degeneralization. ``final_free``
+    holds the states from which no final state can be reached.
+    """
+    builder = _Builder()
+    vwaa = builder.vwaa
+    vwaa.initial = builder.bar(_unweak(nnf))
+    todo = sorted({q for e in vwaa.initial for q in e})
+    done: set[int] = set()
+    while todo:
+        q = todo.pop(0)
+        if q in done:
+            continue
+        done.add(q)
+        vwaa.moves[q] = builder.state_moves(q)
+        for move in vwaa.moves[q]:
+            todo.extend(sorted(move.targets - done))
+    vwaa.finals = sorted(q for q in done if _is_final(vwaa.formulas[q]))
+    free = {q for q in done if q not in vwaa.finals}
+    shrinking = True
+    while shrinking:
+        bad = {q for q in free if any(not m.targets <= free for m in vwaa.moves[q])}
+        free -= bad
+        shrinking = bool(bad)
+    vwaa.final_free = frozenset(free)
+    return vwaa
+
+
+def _unweak(f: Formula) -> Formula:
+    """Replace ``a W b`` by the equivalent ``b R (a | b)``."""
+    if isinstance(f, WeakUntil):
+        left, right = _unweak(f.left), _unweak(f.right)
+        return Release(right, Or(left, right))
+    if isinstance(f, Not | Next | Globally | Eventually):
+        return type(f)(_unweak(f.arg))
+    if isinstance(f, And | Or | Until | Release):
+        return type(f)(_unweak(f.left), _unweak(f.right))
+    return f
+
+
+def _is_gf(f: Formula) -> bool:
+    return isinstance(f, Globally) and isinstance(f.arg, Eventually)
+
+
+def _is_final(f: Formula) -> bool:
+    return isinstance(f, Until | Eventually) or _is_gf(f)
+
+
+def _minimal(terms: list[Term]) -> list[Term]:
+    """Drop duplicated terms and terms dominated by a weaker cube with fewer successors."""
+    unique = list(dict.fromkeys(terms))
+    out = []
+    for i, (cube, targets) in enumerate(unique):
+        dominated = False
+        for j, (other_cube, other_targets) in enumerate(unique):
+            if i != j and cube.implies(other_cube) and other_targets <= targets:
+                dominated = True
+                break
+        if not dominated:
+            out.append((cube, targets))
+    return out
+
+
+def _product(xs: list[Term], ys: list[Term]) -> list[Term]:
+    out = []
+    for cube_x, targets_x in xs:
+        for cube_y, targets_y in ys:
+            cube = cube_x.conjoin(cube_y)
+            if cube is not None:
+                out.append((cube, targets_x | targets_y))
+    return _minimal(out)
+
+
+class _Builder:
+    def __init__(self) -> None:
+        self.vwaa = Vwaa()
+        self.cache: dict[Formula, list[Term]] = {}
+
+    def state(self, f: Formula) -> int:
+        if f not in self.vwaa.index:
+            self.vwaa.index[f] = len(self.vwaa.formulas)
+            self.vwaa.formulas.append(f)
+        return self.vwaa.index[f]
+
+    def bar(self, f: Formula) -> list[frozenset[int]]:
+        """The DNF of ``f`` over states: a list of alternative state sets."""
+        if isinstance(f, Const):
+            return [frozenset()] if f.value else []
+        if isinstance(f, Or):
+            sets = self.bar(f.left) + self.bar(f.right)
+        elif isinstance(f, And):
+            sets = [a | b for a in self.bar(f.left) for b in self.bar(f.right)]
+        else:
+            return [frozenset((self.state(f),))]
+        unique = list(dict.fromkeys(sets))
+        return [s for s in unique if not any(o < s for o in unique)]
+
+    def delta(self, f: Formula) -> list[Term]:
+        """``Δ(f)``: the transitions of ``f`` as an obligation, not as a state."""
+        if f not in self.cache:
+            self.cache[f] = self._delta(f)
+        return self.cache[f]
+
+    def _delta(self, f: Formula) -> list[Term]:
+        true = Cube.TRUE
+        if isinstance(f, Const):
+            return [(true, frozenset())] if f.value else []
+        if isinstance(f, Prop):
+            return [(Cube.literal(f.name), frozenset())]
+        if isinstance(f, Not):
+            assert isinstance(f.arg, Prop), "the formula must be in negation normal form"
+            return [(Cube.literal(f.arg.name, False), frozenset())]
+        if isinstance(f, And):
+            return _product(self.delta(f.left), self.delta(f.right))
+        if isinstance(f, Or):
+            return _minimal(self.delta(f.left) + self.delta(f.right))
+        if isinstance(f, Next):
+            return [(true, e) for e in self.bar(f.arg)]
+        loop = [(true, frozenset((self.state(f),)))]
+        if _is_gf(f):
+            return loop
+        if isinstance(f, Until):
+            return _minimal(self.delta(f.right) + _product(self.delta(f.left), loop))
+        if isinstance(f, Eventually):
+            return _minimal(self.delta(f.arg) + loop)
+        if isinstance(f, Release):
+            return _product(self.delta(f.right), _minimal(self.delta(f.left) + loop))
+        assert isinstance(f, Globally), f"unexpected formula {f!r}"
+        return _product(self.delta(f.arg), loop)
+
+    def state_moves(self, q: int) -> tuple[Move, ...]:
+        """``δ(q)`` with the marks that discharge a final state's obligation."""
+        f = self.vwaa.formulas[q]
+        if _is_gf(f):
+            assert isinstance(f, Globally) and isinstance(f.arg, Eventually)
+            loop = frozenset((q,))
+            marked = [Move(c, t | loop, True) for c, t in self.delta(f.arg.arg)]
+            moves = [*marked, Move(Cube.TRUE, loop, False)]
+            return tuple(m for m in moves if not _move_dominated(m, moves))
+        return tuple(Move(c, t, q not in t) for c, t in self.delta(f))
+
+
+def _move_dominated(move: Move, moves: list[Move]) -> bool:
+    return any(
+        other != move
+        and move.cube.implies(other.cube)
+        and other.targets <= move.targets
+        and (other.marked or not move.marked)
+        for other in moves
+    )
