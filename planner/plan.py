@@ -24,6 +24,7 @@ from planner.ltl_semantics import holds_on_lasso
 from planner.options import PlannerSpec
 from planner.prune import has_accepting_run, prune
 from planner.tl_rrt_star import Lasso, default_eta, plan_lasso
+from planner.translate import translate
 from planner.world import World
 
 
@@ -82,8 +83,6 @@ class MissionPlan:
 def translate_task(task: str, world: World, clearance: float) -> tuple[Buchi, Buchi]:
     """The automaton of ``task`` and its pruning for ``world`` (FormulaError on bad input,
     PlanningError when no accepting run survives pruning)."""
-    from planner.translate import translate
-
     formula = parse(task)
     check_mission_formula(formula, task)
     nba = translate(formula)
