@@ -19,7 +19,7 @@ import numpy as np
 
 from envs.nav_env import EnvOptions, Leg, NavEnv
 from envs.rewards import EnvConfigError, RegionTest, reward_config, reward_mode
-from envs.robots import Robot, make_robot, robot_class
+from envs.robots import Robot, RobotConfigError, make_robot, robot_class
 from envs.robots.racecar import WHEEL_RADIUS, RacecarParams
 from envs.spec import RobotSpec
 from planner.decompose import SubTask
@@ -91,9 +91,15 @@ def make_env(
     opts = _options(options, overrides)
     mode = reward_mode(reward, opts.rewards)
     spec = mission.robot
-    robot_class(spec.model)
+    model = robot_class(spec.model)
     if world is None:
         world = mission.world.build(keep_clear=[spec.position()])
+    if world.dim not in model.workspace_dims:
+        allowed = " or ".join(f"{d}D" for d in model.workspace_dims)
+        raise RobotConfigError(
+            "model",
+            f"a {spec.model} robot moves in a {allowed} workspace, but the world is {world.dim}D",
+        )
     start = np.asarray(spec.position(), dtype=float)
     if start.shape != (world.dim,):
         raise EnvConfigError(

@@ -1,0 +1,490 @@
+"""The navigation env: Gymnasium conformance, episodes, observation layout, bad input.
+
+The helpers at the top (worlds, missions, planned missions) are shared with
+``test_scripted.py`` and ``test_rewards.py``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from functools import cache
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from stable_baselines3.common.env_checker import check_env
+
+from envs.factory import ENV_ID, make_env
+from envs.nav_env import EnvOptions, NavEnv
+from envs.observation import RayCaster
+from envs.rewards import REWARD_MODES, EnvConfigError
+from envs.robots import RobotConfigError
+from envs.spec import RobotSpec
+from planner.decompose import SubTask
+from planner.options import PlannerSpec
+from planner.plan import MissionPlan, plan_mission
+from planner.shapes import Ball, Box, Polygon
+from planner.world import World
+
+# ------------------------------------------------------------------------------ shared helpers
+CLEARANCE = 0.35
+"""Planning clearance: wider than the robots (0.1-0.3) so scripted controllers have slack."""
+
+
+def world_2d() -> World:
+    return World(
+        np.array([[0.0, 10.0], [0.0, 10.0]]),
+        [
+            Box(np.array([4.0, 0.0]), np.array([5.0, 5.5])),
+            Ball(np.array([7.5, 8.2]), 0.7),
+            Polygon(np.array([[1.5, 4.0], [3.0, 4.0], [2.2, 5.2]])),
+        ],
+        {
+            "g1": Ball(np.array([8.5, 2.0]), 0.8),
+            "g2": Box(np.array([1.0, 8.0]), np.array([2.5, 9.5])),
+        },
+    )
+
+
+def world_3d() -> World:
+    return World(
+        np.array([[0.0, 6.0], [0.0, 6.0], [0.0, 3.0]]),
+        [
+            Box(np.array([2.5, 0.0, 0.0]), np.array([3.5, 4.0, 3.0])),
+            Ball(np.array([4.5, 4.7, 1.5]), 0.5),
+        ],
+        {"g1": Ball(np.array([5.0, 1.0, 1.5]), 0.5), "g2": Ball(np.array([1.0, 5.0, 1.5]), 0.5)},
+    )
+
+
+START_2D = [1.0, 1.0]
+START_3D = [1.0, 1.0, 1.0]
+
+
+@dataclass(frozen=True)
+class Prebuilt:
+    """A world section handing back a prebuilt world (``build`` is what ``make_env`` calls)."""
+
+    world: World
+
+    def build(self, keep_clear: Sequence[np.ndarray] = ()) -> World:
+        return self.world
+
+
+@dataclass(frozen=True)
+class Mission:
+    """The two sections ``make_env`` reads of a mission."""
+
+    world: Prebuilt
+    robot: RobotSpec
+
+
+@cache
+def planned(dim: int, task: str, clearance: float = CLEARANCE) -> tuple[World, MissionPlan]:
+    """A world and a real plan of ``task`` in it (cached: planning takes a fraction of a
+    second)."""
+    world = world_2d() if dim == 2 else world_3d()
+    start = np.array(START_2D if dim == 2 else START_3D)
+    options = PlannerSpec(seed=0, refine_seconds=0.2, time_limit=20.0)
+    return world, plan_mission(world, task, start, clearance, options)
+
+
+FINITE = "<>(g1 && <>g2)"
+INFINITE = "[]<>g1 && []<>g2"
+
+ROBOTS = [("unicycle", 2, 0.2), ("point", 2, 0.2), ("point", 3, 0.2), ("quadrotor", 3, 0.15)]
+ROBOTS += [("racecar", 2, 0.3)]
+ROBOT_IDS = [f"{m}-{d}D" for m, d, _ in ROBOTS]
+
+
+def mission(model: str, dim: int, radius: float = 0.2, heading: float | None = None) -> Mission:
+    world = world_2d() if dim == 2 else world_3d()
+    start = list(START_2D if dim == 2 else START_3D)
+    if heading is not None:
+        start.append(heading)
+    return Mission(Prebuilt(world), RobotSpec(model=model, start=start, radius=radius))
+
+
+def build_env(
+    model: str,
+    dim: int,
+    reward: str = "rrt",
+    radius: float = 0.2,
+    task: str = INFINITE,
+    **kw: Any,
+) -> NavEnv:
+    """The env of sub-task 0 (the whole lasso for g-rrt) of ``task`` for ``model``."""
+    world, plan = planned(dim, task)
+    sub = None if reward == "g-rrt" else plan.subtasks[0]
+    return make_env(mission(model, dim, radius), sub, reward, world=world, plan=plan, **kw)
+
+
+@pytest.fixture
+def envs() -> Iterator[list[NavEnv]]:
+    """Envs built by a test, closed afterwards (the racecar holds a PyBullet server)."""
+    built: list[NavEnv] = []
+    yield built
+    for env in built:
+        env.close()
+
+
+# ------------------------------------------------------------------------------ conformance
+@pytest.mark.parametrize(("model", "dim", "radius"), ROBOTS, ids=ROBOT_IDS)
+@pytest.mark.parametrize("reward", list(REWARD_MODES))
+def test_check_env_every_robot_and_reward(
+    envs: list[NavEnv], model: str, dim: int, radius: float, reward: str
+) -> None:
+    env = build_env(model, dim, reward, radius, rays=4 if model == "unicycle" else 0)
+    envs.append(env)
+    check_env(env, warn=True)
+
+
+def test_gymnasium_make_builds_the_registered_env() -> None:
+    world, plan = planned(2, INFINITE)
+    env = gym.make(
+        ENV_ID, mission=mission("unicycle", 2), subtask=1, reward="rrt", world=world, plan=plan
+    )
+    try:
+        obs, info = env.reset(seed=3)
+        assert env.observation_space.contains(obs)
+        assert isinstance(env.unwrapped, NavEnv) and info["is_success"] is False
+        obs, _, _, _, info = env.step(env.action_space.sample())
+        assert "is_success" in info and "progress_index" in info
+    finally:
+        env.close()
+
+
+# ------------------------------------------------------------------------------ episodes
+def drive_straight(
+    env: NavEnv, action: np.ndarray, limit: int
+) -> list[tuple[float, bool, bool, dict]]:
+    out = []
+    for _ in range(limit):
+        _, reward, terminated, truncated, info = env.step(action)
+        out.append((reward, terminated, truncated, info))
+        if terminated or truncated:
+            break
+    return out
+
+
+def test_crash_ends_with_r_minus_before_goal_and_progress(envs: list[NavEnv]) -> None:
+    """A goal region overlapping an obstacle: the step that enters both is a crash (R- first)."""
+    world = World(
+        np.array([[0.0, 10.0], [0.0, 4.0]]),
+        [Box(np.array([6.0, 0.0]), np.array([7.0, 4.0]))],
+        {"g": Box(np.array([5.5, 1.0]), np.array([8.0, 3.0]))},
+    )
+    path = np.array([[1.0, 2.0], [6.5, 2.0]])
+    sub = SubTask(0, "prefix", "g", path[0], path, 0, 0)
+    spec = RobotSpec(model="unicycle", start=[1.0, 2.0, 0.0], radius=0.6)
+    for reward in ("rrt-paper", "rrt"):
+        env = make_env(Mission(Prebuilt(world), spec), sub, reward, world=world)
+        envs.append(env)
+        env.reset(seed=0)
+        steps = drive_straight(env, np.array([1.0, 0.0]), 200)
+        r, terminated, truncated, info = steps[-1]
+        assert terminated and not truncated
+        assert info["collision"] and info["is_success"] is False
+        assert r == env.mode.crash
+        # The robot earned progress on the way.
+        assert any(s[0] > 0 for s in steps[:-1])
+
+
+def test_step_limit_truncates_without_success(envs: list[NavEnv]) -> None:
+    env = build_env("unicycle", 2, max_steps=7)
+    envs.append(env)
+    env.reset(seed=0)
+    steps = drive_straight(env, np.zeros(2), 50)
+    assert len(steps) == 7
+    r, terminated, truncated, info = steps[-1]
+    assert truncated and not terminated and info["is_success"] is False
+    assert r == pytest.approx(-0.001)
+
+
+def test_default_step_limit_is_three_times_the_guide_time() -> None:
+    env = build_env("point", 2)
+    speed_steps = env.guide_length / (1.0 * 0.1)
+    assert env.max_steps == max(50, math.ceil(3.0 * speed_steps))
+    racecar = build_env("racecar", 2, radius=0.3)
+    try:
+        assert racecar.max_steps == max(50, math.ceil(3.0 * racecar.guide_length / (1.0 * 0.1)))
+    finally:
+        racecar.close()
+
+
+@pytest.mark.parametrize("penalty", [None, -0.5])
+def test_stall_ends_the_episode(envs: list[NavEnv], penalty: float | None) -> None:
+    env = build_env("point", 2, stall_steps=5, stall_penalty=penalty)
+    envs.append(env)
+    env.reset(seed=0)
+    steps = drive_straight(env, np.zeros(2), 50)
+    assert len(steps) == 5
+    r, terminated, truncated, info = steps[-1]
+    assert info["stalled"] and info["is_success"] is False
+    if penalty is None:
+        assert truncated and not terminated and r == pytest.approx(-0.001)
+    else:
+        assert terminated and not truncated and r == penalty
+
+
+def test_curriculum_starts_at_a_ball_with_the_matching_index(envs: list[NavEnv]) -> None:
+    env = build_env("unicycle", 2, curriculum=1.0)
+    envs.append(env)
+    guide = env.legs[0].guide
+    seen = set()
+    for seed in range(25):
+        obs, info = env.reset(seed=seed)
+        x = env.robot.position()
+        ball = int(np.argmin(np.linalg.norm(guide.centers - x, axis=1)))
+        assert np.allclose(guide.centers[ball], x)
+        assert ball < guide.num_balls - 1
+        assert info["progress_index"] == max(ball, guide.locate(x)) >= ball
+        assert obs[env.robot.state_dim] == pytest.approx(
+            (info["progress_index"] + 1) / guide.num_balls
+        )
+        assert info["distance_to_go"] == pytest.approx(guide.dist_to_go[info["progress_index"]])
+        seen.add(ball)
+    assert len(seen) > 5
+    plain = build_env("unicycle", 2)
+    envs.append(plain)
+    for seed in range(3):
+        plain.reset(seed=seed)
+        assert np.allclose(plain.robot.position(), plain.legs[0].subtask.start)
+
+
+def test_curriculum_on_the_whole_lasso_sets_the_stage(envs: list[NavEnv]) -> None:
+    env = build_env("point", 2, "g-rrt", curriculum=1.0)
+    envs.append(env)
+    stages = set()
+    for seed in range(30):
+        _, info = env.reset(seed=seed)
+        leg = env.legs[info["stage"]]
+        assert leg.offset <= info["progress_index"] < leg.offset + leg.guide.num_balls
+        assert env._automaton is not None and env._automaton.stage == info["stage"]
+        stages.add(info["stage"])
+    assert len(stages) >= 3
+
+
+def test_start_noise_stays_free_and_in_the_start_regions(envs: list[NavEnv]) -> None:
+    world, plan = planned(2, INFINITE)
+    sub = plan.subtasks[1]  # starts inside g1
+    env = make_env(mission("point", 2), sub, world=world, plan=plan, start_noise=0.5)
+    envs.append(env)
+    regions = world.labels(sub.start)
+    assert regions
+    moved = 0
+    for seed in range(10):
+        env.reset(seed=seed)
+        x = env.robot.position()
+        assert np.linalg.norm(x - sub.start) <= 0.5 + 1e-9
+        assert not world.in_collision(x[None], 0.2)[0]
+        assert world.labels(x) == regions
+        moved += not np.allclose(x, sub.start)
+    assert moved >= 8
+
+
+def test_deterministic_for_a_seed() -> None:
+    runs = []
+    for _ in range(2):
+        env = build_env("unicycle", 2, curriculum=0.5, start_noise=0.3, heading_noise=1.0)
+        actions = np.random.default_rng(5).uniform(-1, 1, size=(120, 2))
+        trace = []
+        obs, _ = env.reset(seed=11)
+        trace.append(obs)
+        for a in actions:
+            obs, r, te, tr, _ = env.step(a)
+            trace.append(np.append(obs, r))
+            if te or tr:
+                obs, _ = env.reset()
+                trace.append(obs)
+        runs.append(trace)
+    first, second = runs
+    assert len(first) == len(second)
+    assert all(np.array_equal(a, b) for a, b in zip(first, second, strict=True))
+    other = build_env("unicycle", 2, curriculum=0.5, start_noise=0.3, heading_noise=1.0)
+    starts = {tuple(other.reset(seed=s)[0].tolist()) for s in range(5)}
+    assert len(starts) == 5
+
+
+def test_reset_options_explicit_start_and_keep_robot(envs: list[NavEnv]) -> None:
+    env = build_env("unicycle", 2)
+    envs.append(env)
+    env.reset(seed=0, options={"position": [2.0, 2.0], "heading": 0.5})
+    assert np.allclose(env.robot.position(), [2.0, 2.0])
+    assert env.robot.state[2] == pytest.approx(0.5)
+    env.step(np.array([1.0, 0.0]))
+    here = env.robot.position()
+    _, info = env.reset(options={"keep_robot": True})
+    assert np.allclose(env.robot.position(), here) and info["steps"] == 0
+    with pytest.raises(ValueError, match="unknown reset options"):
+        env.reset(options={"teleport": True})
+    with pytest.raises(ValueError, match="coordinates"):
+        env.reset(options={"position": [1.0, 2.0, 3.0]})
+
+
+# ------------------------------------------------------------------------------ observation
+def test_guided_observation_layout_in_the_robot_frame(envs: list[NavEnv]) -> None:
+    env = build_env("unicycle", 2, lookahead=2)
+    envs.append(env)
+    guide = env.legs[0].guide
+    n = env.robot.state_dim
+    assert env.observation_space.shape == (n + 1 + 2 * 2,)
+    heading = math.atan2(*(guide.centers[1] - guide.centers[0])[::-1])
+    obs, info = env.reset(seed=0, options={"position": guide.centers[0], "heading": heading})
+    assert info["progress_index"] == guide.locate(guide.centers[0])
+    lo, hi = env.robot.state_low, env.robot.state_high
+    raw = env.robot.observation()
+    assert np.allclose(obs[:n], 2 * (raw - lo) / (hi - lo) - 1, atol=1e-6)
+    i = info["progress_index"]
+    ahead = guide.centers[min(i + 1, guide.num_balls - 1)] - guide.centers[0]
+    c, s = math.cos(heading), math.sin(heading)
+    scale = 2 * guide.r * 3
+    expected = np.clip(
+        [(c * ahead[0] + s * ahead[1]) / scale, (c * ahead[1] - s * ahead[0]) / scale], -1, 1
+    )
+    assert np.allclose(obs[n + 1 : n + 3], expected, atol=1e-5)
+
+
+def test_world_frame_offsets_and_paper_layout(envs: list[NavEnv]) -> None:
+    env = build_env("quadrotor", 3, radius=0.15, lookahead=1, lookahead_range=2.0)
+    envs.append(env)
+    obs, info = env.reset(seed=0)
+    guide, n = env.legs[0].guide, env.robot.state_dim
+    nxt = guide.centers[min(info["progress_index"] + 1, guide.num_balls - 1)]
+    assert np.allclose(obs[n + 1 :], np.clip((nxt - env.robot.position()) / 2.0, -1, 1), atol=1e-5)
+    paper = build_env("unicycle", 2, observation="paper", rays=3)
+    envs.append(paper)
+    assert paper.observation_space.shape == (4 + 1 + 3,)
+
+
+def brute_force_ray(world: World, x: np.ndarray, u: np.ndarray, max_range: float) -> float:
+    t = np.linspace(0.0, max_range, 20001)
+    pts = x + t[:, None] * u
+    hit = world.in_collision(pts, 0.0)
+    return float(t[np.argmax(hit)]) if hit.any() else max_range
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_rays_match_a_brute_force_march(dim: int) -> None:
+    world = world_2d() if dim == 2 else world_3d()
+    caster = RayCaster(world, 12, 4.0)
+    rng = np.random.default_rng(dim)
+    for x in world.sample_free(rng, 8, 0.1):
+        theta = float(rng.uniform(-math.pi, math.pi)) if dim == 2 else 0.0
+        rotation = (math.cos(theta), math.sin(theta)) if dim == 2 else None
+        got = caster.cast(x.tolist(), rotation)
+        for k in range(12):
+            u = caster.directions[k]
+            if dim == 2:
+                u = np.array(
+                    [
+                        math.cos(theta) * u[0] - math.sin(theta) * u[1],
+                        math.sin(theta) * u[0] + math.cos(theta) * u[1],
+                    ]
+                )
+            assert got[k] == pytest.approx(brute_force_ray(world, x, u, 4.0), abs=2e-3)
+
+
+def test_render_returns_an_rgb_array(envs: list[NavEnv]) -> None:
+    for dim in (2, 3):
+        env = build_env("point", dim, render_mode="rgb_array")
+        envs.append(env)
+        env.reset(seed=0)
+        for _ in range(5):
+            env.step(env.action_space.sample())
+        frame = env.render()
+        assert frame is not None and frame.dtype == np.uint8 and frame.ndim == 3
+        assert frame.shape[2] == 3 and frame.shape[1] >= frame.shape[0] >= 300
+        assert len(np.unique(frame.reshape(-1, 3), axis=0)) > 5
+        assert len(env.trail) == 6
+
+
+# ------------------------------------------------------------------------------ bad input
+def test_bad_input_fails_at_construction_with_clear_errors() -> None:
+    world, plan = planned(2, INFINITE)
+    m, sub = mission("unicycle", 2), plan.subtasks[0]
+    with pytest.raises(EnvConfigError, match="unknown reward mode 'dense'"):
+        make_env(m, sub, "dense", world=world)
+    tank = Mission(
+        Prebuilt(world),
+        RobotSpec.model_construct(model="tank", start=[1.0, 1.0], radius=0.2, params={}),  # type: ignore[arg-type]
+    )
+    with pytest.raises(RobotConfigError, match="unknown robot model 'tank'"):
+        make_env(tank, sub, world=world)
+    with pytest.raises(EnvConfigError, match=r"robot\.start.*3D position but the world is 2D"):
+        make_env(
+            Mission(Prebuilt(world), RobotSpec(model="point", start=[1, 1, 1])), sub, world=world
+        )
+    bad_sub = SubTask(0, "prefix", "g1", np.array([1.0, 1.0, 0.0]), sub.path, 0, 1)
+    with pytest.raises(EnvConfigError, match=r"subtask\.start"):
+        make_env(m, bad_sub, world=world)
+    w3 = world_3d()
+    flat = Mission(Prebuilt(w3), RobotSpec(model="unicycle", start=[1, 1]))
+    with pytest.raises(RobotConfigError, match="2D workspace, but the world is 3D"):
+        make_env(flat, bad3d(), world=w3)
+    for reward in ("tl", "g-rrt"):
+        with pytest.raises(EnvConfigError, match="needs the mission plan"):
+            make_env(m, sub if reward == "tl" else None, reward, world=world)
+    with pytest.raises(EnvConfigError, match="pass subtask=None"):
+        make_env(m, sub, "g-rrt", world=world, plan=plan)
+    with pytest.raises(EnvConfigError, match="unknown env option"):
+        make_env(m, sub, world=world, lookahed=2)
+    with pytest.raises(EnvConfigError, match=r"options\.curriculum"):
+        make_env(m, sub, world=world, curriculum=1.5)
+    with pytest.raises(EnvConfigError, match="does not use 'step_cost'"):
+        make_env(m, sub, "rrt-paper", world=world, rewards={"step_cost": 0.1})
+    with pytest.raises(EnvConfigError, match="in collision"):
+        blocked = SubTask(
+            0, "prefix", "g1", np.array([4.5, 1.0]), np.array([[4.5, 1.0], [8.5, 2.0]]), 0, 1
+        )
+        make_env(m, blocked, world=world)
+    with pytest.raises(EnvConfigError, match="index 9 out of range"):
+        make_env(m, 9, world=world, plan=plan)
+    with pytest.raises(EnvConfigError, match="no region 'g9'"):
+        make_env(m, SubTask(0, "prefix", "g9", sub.start, sub.path, 0, 1), world=world)
+
+
+def bad3d() -> SubTask:
+    path = np.array([[1.0, 1.0, 1.0], [2.0, 1.0, 1.0]])
+    return SubTask(0, "prefix", "", path[0], path, 0, 0)
+
+
+@pytest.mark.parametrize(
+    "action",
+    [
+        np.array([1.5, 0.0]),
+        np.array([0.0, -1.01]),
+        np.array([0.1, 0.2, 0.3]),
+        np.array([np.nan, 0.0]),
+        np.zeros((1, 2)),
+    ],
+)
+def test_bad_actions_raise_instead_of_clipping(envs: list[NavEnv], action: np.ndarray) -> None:
+    env = build_env("unicycle", 2)
+    envs.append(env)
+    env.reset(seed=0)
+    before = env.robot.state
+    with pytest.raises(ValueError, match="action"):
+        env.step(action)
+    assert np.array_equal(env.robot.state, before)
+
+
+def test_options_dataclass_documents_every_field() -> None:
+    import ast
+    import inspect
+
+    import envs.nav_env as module
+
+    tree = ast.parse(inspect.getsource(module))
+    cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "EnvOptions")
+    documented = {
+        cls.body[i].target.id  # type: ignore[attr-defined]
+        for i in range(len(cls.body) - 1)
+        if isinstance(cls.body[i], ast.AnnAssign)
+        and isinstance(cls.body[i + 1], ast.Expr)
+        and isinstance(cls.body[i + 1].value, ast.Constant)  # type: ignore[attr-defined]
+    }
+    assert documented == set(EnvOptions.field_names())

@@ -1,0 +1,139 @@
+"""Reward modes, their constants, the goal tests and the automaton judge."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from envs.factory import make_env
+from envs.rewards import (
+    REWARD_MODES,
+    AutomatonTracker,
+    EnvConfigError,
+    RegionLabeler,
+    RegionTest,
+    RewardConfig,
+    Stage,
+    reward_config,
+    reward_mode,
+)
+from planner.shapes import Ball, Box, Polygon
+from planner.translate import translate
+from tests.envs.test_nav_env import mission, planned, world_2d
+
+
+def test_paper_reward_is_exactly_the_papers() -> None:
+    mode = reward_mode("rrt-paper")
+    assert (mode.crash, mode.goal, mode.constants["progress"]) == (-100.0, 200.0, 5.0)
+    assert mode.step_reward(True, 0.3, [0.0, 0.0]) == 5.0
+    assert mode.step_reward(False, 0.0, [0.0, 0.0]) == 0.0
+    custom = reward_mode("rrt-paper", RewardConfig(crash=-200.0, progress=1.0))
+    assert custom.crash == -200.0 and custom.step_reward(True, 9.0, [0.0]) == 1.0
+
+
+def test_scaled_reward_pays_metres_gained_minus_a_step_cost() -> None:
+    mode = reward_mode("rrt")
+    assert (mode.crash, mode.goal) == (-1.0, 2.0)
+    assert mode.step_reward(True, 1.0, [0.0, 0.0]) == pytest.approx(0.05 - 0.001)
+    assert mode.step_reward(False, 0.0, [0.0, 0.0]) == pytest.approx(-0.001)
+    tuned = reward_mode("rrt", RewardConfig(progress=0.1, step_cost=0.0))
+    assert tuned.step_reward(True, 0.5, [0.0, 0.0]) == pytest.approx(0.05)
+    # Parking never beats crashing: the discounted cost of standing still stays far above R-.
+    assert -mode.constants["step_cost"] / (1 - 0.99) > 10 * mode.crash / 100
+    assert reward_mode("g-rrt").constants == mode.constants
+
+
+def test_ned_reward_is_the_scaled_distance_to_the_goal_region() -> None:
+    mode = reward_mode("ned")
+    mode.bind_goal(RegionTest(Ball(np.array([5.0, 0.0]), 1.0)), [5.0, 0.0])
+    assert mode.step_reward(False, 0.0, [0.0, 0.0]) == pytest.approx(-0.0005 * 4.0)
+    assert mode.step_reward(True, 1.0, [5.5, 0.0]) == 0.0
+    mode.bind_goal(None, [3.0, 4.0])
+    assert mode.step_reward(False, 0.0, [0.0, 0.0]) == pytest.approx(-0.0005 * 5.0)
+    assert reward_mode("tl").step_reward(True, 3.0, [0.0, 0.0]) == 0.0
+
+
+def test_reward_configuration_errors() -> None:
+    with pytest.raises(EnvConfigError, match="unknown reward mode"):
+        reward_mode("sparse")
+    with pytest.raises(EnvConfigError, match="'ned' does not use 'progress'"):
+        reward_mode("ned", RewardConfig(progress=1.0))
+    with pytest.raises(EnvConfigError, match="'tl' does not use 'step_cost'"):
+        reward_mode("tl", RewardConfig(step_cost=0.1))
+    with pytest.raises(EnvConfigError, match=r"rewards\.crash: must be finite"):
+        RewardConfig(crash=-math.inf)
+    with pytest.raises(EnvConfigError, match=r"rewards\.step_cost: must be >= 0"):
+        RewardConfig(step_cost=-0.1)
+    with pytest.raises(EnvConfigError, match=r"rewards\.goal: must be a number"):
+        RewardConfig(goal="big")  # type: ignore[arg-type]
+    with pytest.raises(EnvConfigError, match=r"rewards\.bonus: unknown reward constant"):
+        reward_config({"bonus": 1.0})
+    assert reward_config({"crash": -2}) == RewardConfig(crash=-2)
+    assert set(REWARD_MODES) == {"rrt", "rrt-paper", "g-rrt", "ned", "tl"}
+
+
+@pytest.mark.parametrize(
+    "shape",
+    [
+        Box(np.array([1.0, -1.0]), np.array([2.0, 0.5])),
+        Box(np.array([1.0, -1.0, 0.0]), np.array([2.0, 0.5, 1.0])),
+        Ball(np.array([0.5, 0.2]), 0.7),
+        Ball(np.array([0.5, 0.2, -0.3]), 0.7),
+        Polygon(np.array([[0.0, 0.0], [2.0, 0.0], [1.0, 0.5], [1.0, 2.0]])),
+    ],
+    ids=["box2", "box3", "ball2", "ball3", "polygon"],
+)
+def test_region_tests_agree_with_the_shapes(shape: Box | Ball | Polygon) -> None:
+    test = RegionTest(shape)
+    pts = np.random.default_rng(0).uniform(-1.0, 3.0, size=(300, shape.dim))
+    inside = shape.contains(pts)
+    assert 0 < inside.sum() < len(pts)
+    assert [test.contains(p.tolist()) for p in pts] == inside.tolist()
+    assert np.allclose([test.distance(p.tolist()) for p in pts], shape.distance(pts))
+
+
+def test_labeler_matches_the_world_labels() -> None:
+    world = world_2d()
+    labeler = RegionLabeler(world.region_names, [world.regions[n] for n in world.region_names])
+    for x in np.random.default_rng(1).uniform(0.0, 10.0, size=(400, 2)):
+        assert labeler.labels(x.tolist()) == world.labels(x) - {"obstacle"}
+
+
+def test_automaton_tracker_follows_stages_and_detects_violations() -> None:
+    nba = translate("!g2 U g1")
+    target = next(iter(nba.successors(nba.initial, frozenset({"g1"}))))
+    tracker = AutomatonTracker(nba, [Stage(nba.initial, target, "g1")])
+    assert tracker.read(frozenset(), False) == 0
+    assert tracker.read(frozenset({"g1"}), False) == 1 and tracker.done
+    tracker.reset()
+    assert not tracker.done
+    assert tracker.read(frozenset({"g2"}), False) == -1
+    with pytest.raises(EnvConfigError, match="not in the automaton"):
+        AutomatonTracker(nba, [Stage(nba.initial, 99, "g1")])
+    # A stage that stays in one state ends on entering its goal (or at the guide's end).
+    loop = AutomatonTracker(nba, [Stage(target, target, "g2"), Stage(target, target, "")])
+    assert loop.read(frozenset({"g1"}), True) == 0
+    assert loop.read(frozenset({"g2"}), False) == 1 and loop.stage == 1
+    assert loop.read(frozenset(), False) == 0
+    assert loop.read(frozenset(), True) == 1 and loop.done
+
+
+def test_tl_env_ends_on_a_specification_violation() -> None:
+    world, plan = planned(2, "!g2 U g1")
+    env = make_env(mission("point", 2), plan.subtasks[0], "tl", world=world, plan=plan)
+    env.reset(seed=0, options={"position": [1.75, 8.75]})  # inside g2
+    _, reward, terminated, truncated, info = env.step(np.zeros(2))
+    assert terminated and not truncated and reward == -1.0
+    assert info["violation"] and not info["collision"] and info["is_success"] is False
+
+
+def test_ned_env_pays_the_distance_to_the_goal_region() -> None:
+    world, plan = planned(2, "<>(g1 && <>g2)")
+    sub = plan.subtasks[0]
+    env = make_env(mission("point", 2), sub, "ned", world=world, plan=plan)
+    env.reset(seed=0)
+    _, reward, _, _, _ = env.step(np.zeros(2))
+    expected = float(world.regions[sub.goal].distance(env.robot.position()[None])[0])
+    assert reward == pytest.approx(-0.0005 * expected)
