@@ -54,6 +54,9 @@ class Buchi:
                 raise ValueError(f"two edges join {e.source} and {e.target}; merge their guards")
             if e.guard.is_false:
                 raise ValueError(f"edge {e.source}->{e.target} has a false guard")
+            if not e.guard.atoms <= set(self.atoms):
+                unknown = ", ".join(sorted(e.guard.atoms - set(self.atoms)))
+                raise ValueError(f"edge {e.source}->{e.target} uses {unknown}, not in atoms")
             seen.add((e.source, e.target))
 
     @property
