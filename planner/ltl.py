@@ -4,8 +4,8 @@ spin syntax, mission checks).
 
 Two syntaxes are accepted and may be mixed: spin/ltl2ba (``[] <> ! && || -> <-> U V X``,
 also ``/\\ \\/``) and the letter syntax of Spot and most papers (``G F X U R W & | ~``).
-Atomic propositions are lowercase identifiers ``[a-z_][a-z0-9_]*``, so a lone uppercase
-letter is always an operator and ``GFa`` reads as ``G F a``.
+Atomic propositions are lowercase identifiers ``[a-z_][a-z0-9_]*``, so an uppercase
+operator letter is always an operator: ``GFa`` reads as ``G F a`` (and ``Goal`` as ``G oal``).
 """
 
 from __future__ import annotations

@@ -185,6 +185,8 @@ def _merge(x: Formula, y: Formula, kind: type[And] | type[Or]) -> Formula | None
             return Release(Or(x.left, y.left), x.right)
     if not conj and _is_gf(x) and _is_gf(y):
         return Globally(Eventually(Or(_inner(x), _inner(y))))
+    if not conj and isinstance(x, Eventually) and isinstance(y, Eventually):
+        return Eventually(Or(x.arg, y.arg))
     return None
 
 
