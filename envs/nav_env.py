@@ -29,14 +29,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field, fields
-from typing import Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from envs.observation import ObservationBuilder, ObservationMode, RayCaster
+from envs.observation import HEADING_FEATURES, ObservationBuilder, RayCaster
 from envs.rewards import (
     RUNNING,
     SUCCESS,
@@ -45,7 +45,6 @@ from envs.rewards import (
     EnvConfigError,
     RegionLabeler,
     RegionTest,
-    RewardConfig,
     RewardMode,
     Stage,
 )
@@ -55,89 +54,8 @@ from planner.decompose import SubTask
 from planner.guidance import Guide, ProgressTracker
 from planner.world import World
 
-
-@dataclass(frozen=True)
-class EnvOptions:
-    """Options of the navigation env; every default is chosen for training the ``rrt`` mode."""
-
-    max_steps: int | None = None
-    """Step limit of an episode (truncation). None: ``max(50, ceil(time_factor * L / (v dt)))``
-    with ``L`` the guide length (every leg for ``g-rrt``), ``v`` the robot's top speed
-    (``max_speed``; racecar: ``max_wheel_speed`` times the wheel radius) and ``dt`` its agent
-    step: ``time_factor`` times the time to follow the guide at full speed."""
-    time_factor: float = 3.0
-    """Multiple of the guide-following time that sets the default ``max_steps``."""
-    observation: ObservationMode = "guided"
-    """``"guided"``: state, progress and the next ``lookahead`` ball centres (plus rays);
-    ``"paper"``: the bare product state ``(s_t, i_t)`` of the paper (plus rays)."""
-    lookahead: int = 3
-    """How many next r-ball centres the ``"guided"`` observation holds (0: none)."""
-    lookahead_range: float | None = None
-    """Scale of the ball offsets (clipped beyond it), metres. None: ``2 r (lookahead + 1)``."""
-    rays: int = 0
-    """Number of lidar-like rays in the observation (0: none)."""
-    ray_range: float | None = None
-    """Maximum ray range in metres. None: an eighth of the world's diagonal."""
-    curriculum: float = 0.0
-    """Probability that an episode starts at a uniformly drawn r-ball of the guide (not the
-    last) with the progress index set to it. Evaluation must pass 0."""
-    start_noise: float = 0.0
-    """Radius (m) of a uniform perturbation of the start position; a perturbed start stays
-    collision free and in the same regions as the nominal one (100 draws, else no noise)."""
-    heading_noise: float = 0.0
-    """Half-width (rad) of a uniform perturbation of the start heading (pi: any heading). The
-    nominal heading faces the guide, or is the mission's start heading at the mission start."""
-    stall_steps: int = 0
-    """End the episode after this many steps without a new r-ball (0: never)."""
-    stall_penalty: float | None = None
-    """Reward of a stall: None ends a stall as a truncation (value bootstrapped, no penalty);
-    a number ends it as a termination with that reward (a failure the critic learns)."""
-    r_ball: float | None = None
-    """Radius of the guide's r-balls. None: the plan's ``r_ball``, or the planner default
-    (a fortieth of the world's diagonal, ``eta / 2``) without a plan."""
-    rewards: RewardConfig = field(default_factory=RewardConfig)
-    """Reward constants over the mode's defaults (see ``envs.rewards``)."""
-
-    def __post_init__(self) -> None:
-        def need(ok: bool, name: str, rule: str) -> None:
-            if not ok:
-                raise EnvConfigError(f"options.{name}", f"{rule}, got {getattr(self, name)!r}")
-
-        def integer(name: str) -> bool:
-            value = getattr(self, name)
-            return isinstance(value, int | np.integer) and not isinstance(value, bool)
-
-        def number(name: str) -> bool:
-            value = getattr(self, name)
-            ok = isinstance(value, int | float | np.number) and not isinstance(value, bool)
-            return ok and math.isfinite(value)
-
-        need(self.max_steps is None or integer("max_steps"), "max_steps", "must be an integer")
-        need(self.max_steps is None or self.max_steps >= 1, "max_steps", "must be >= 1")
-        need(number("time_factor") and self.time_factor > 0, "time_factor", "must be > 0")
-        need(self.observation in ("guided", "paper"), "observation", "must be guided or paper")
-        need(integer("lookahead") and self.lookahead >= 0, "lookahead", "must be an integer >= 0")
-        need(integer("rays") and self.rays >= 0, "rays", "must be an integer >= 0")
-        for name in ("lookahead_range", "ray_range", "r_ball"):
-            value = getattr(self, name)
-            need(value is None or (number(name) and value > 0), name, "must be > 0")
-        need(number("curriculum") and 0 <= self.curriculum <= 1, "curriculum", "must be in [0, 1]")
-        need(number("start_noise") and self.start_noise >= 0, "start_noise", "must be >= 0")
-        need(
-            number("heading_noise") and 0 <= self.heading_noise <= math.pi,
-            "heading_noise",
-            "must be in [0, pi]",
-        )
-        need(integer("stall_steps") and self.stall_steps >= 0, "stall_steps", "must be >= 0")
-        need(
-            self.stall_penalty is None or number("stall_penalty"), "stall_penalty", "must be finite"
-        )
-        need(isinstance(self.rewards, RewardConfig), "rewards", "must be a RewardConfig")
-
-    @classmethod
-    def field_names(cls) -> tuple[str, ...]:
-        """Every option name (the keyword arguments ``make_env`` accepts)."""
-        return tuple(f.name for f in fields(cls))
+if TYPE_CHECKING:
+    from envs.factory import EnvOptions
 
 
 @dataclass(eq=False)
@@ -224,6 +142,12 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.observation_space = self._obs.space
         self.action_space = spaces.Box(-1.0, 1.0, shape=(robot.action_dim,), dtype=np.float32)
         self.max_steps = int(max_steps)
+        self._forward: float | None = options.min_forward
+        if self._forward is not None and robot.name not in HEADING_FEATURES:
+            raise EnvConfigError(
+                "options.min_forward",
+                f"only for robots driven by (forward, turn) actions, not a {robot.name}",
+            )
         self._leg = first
         self._leg_k = 0
         self._t = 0
@@ -323,6 +247,8 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         robot = self.robot
+        if self._forward is not None:
+            action = self._remap(action)
         robot.step(action)
         self._t += 1
         raw = robot.observation()
@@ -374,6 +300,19 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
             self._info(d, success, crashed, violation, stalled),
         )
 
+    def _remap(self, action: np.ndarray) -> np.ndarray:
+        """The ``min_forward`` mapping of a validated action (a bad action must not be mapped
+        into the box and slip through)."""
+        a = np.array(action, dtype=float)
+        if a.shape != (self.robot.action_dim,) or not np.all(np.abs(a) <= 1.0):
+            raise ValueError(
+                f"action must have shape ({self.robot.action_dim},) with components in [-1, 1] "
+                f"(actions are not clipped), got {np.asarray(action).tolist()}"
+            )
+        low = float(self._forward or 0.0)
+        a[0] = low + (1.0 - low) * 0.5 * (a[0] + 1.0)
+        return a
+
     def _automaton_outcome(self, x: list[float], d: float) -> int:
         """Feed ``L(x)`` to the automaton: RUNNING (moving on to the next leg when a stage
         completes), SUCCESS after the last stage, or VIOLATION."""
@@ -387,6 +326,7 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         if tracker.done:
             return SUCCESS
         self._enter_leg(tracker.stage, x)
+        self._since = 0
         return RUNNING
 
     def _info(

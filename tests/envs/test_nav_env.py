@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 from stable_baselines3.common.env_checker import check_env
 
-from envs.factory import ENV_ID, make_env
-from envs.nav_env import EnvOptions, NavEnv
+from envs.factory import ENV_ID, EnvOptions, make_env
+from envs.nav_env import NavEnv
 from envs.observation import RayCaster
 from envs.rewards import REWARD_MODES, EnvConfigError
 from envs.robots import RobotConfigError
@@ -472,11 +472,23 @@ def test_bad_actions_raise_instead_of_clipping(envs: list[NavEnv], action: np.nd
     assert np.array_equal(env.robot.state, before)
 
 
+def test_min_forward_maps_the_forward_command(envs: list[NavEnv]) -> None:
+    env = build_env("unicycle", 2, min_forward=0.5)
+    envs.append(env)
+    env.reset(seed=0, options={"position": [1.0, 1.0], "heading": 0.0})
+    env.step(np.array([-1.0, 0.0]))  # the slowest command still drives at half speed
+    assert env.robot.position()[0] == pytest.approx(1.0 + 0.5 * 1.0 * 0.1)
+    with pytest.raises(ValueError, match="not clipped"):
+        env.step(np.array([-1.5, 0.0]))
+    with pytest.raises(EnvConfigError, match="min_forward"):
+        build_env("point", 2, min_forward=0.2)
+
+
 def test_options_dataclass_documents_every_field() -> None:
     import ast
     import inspect
 
-    import envs.nav_env as module
+    import envs.factory as module
 
     tree = ast.parse(inspect.getsource(module))
     cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "EnvOptions")
