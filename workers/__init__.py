@@ -1,0 +1,1 @@
+"""ltlnav workers: turn mission specs into artifacts (plans, trained policies, bundles)."""
