@@ -9,12 +9,14 @@ from __future__ import annotations
 
 import json
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Hashable, Iterable, Sequence
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any
+from typing import Any, TypeVar
 
 from planner.guard import Cube, Guard
+
+N = TypeVar("N", bound=Hashable)
 
 
 @dataclass(frozen=True)
@@ -30,8 +32,9 @@ class Edge:
 class Buchi:
     """A nondeterministic Büchi automaton over the letters ``2^atoms``.
 
-    State ids are indices into ``state_names``. At most one edge joins an ordered pair of
-    states; its guard is a DNF whose cubes count as separate transitions, as in ltl2ba.
+    State ids are indices into ``state_names``. The translator emits at most one edge per
+    ordered pair of states; each guard is a DNF whose cubes count as separate transitions,
+    as in ltl2ba.
     """
 
     atoms: tuple[str, ...]
@@ -46,18 +49,14 @@ class Buchi:
             raise ValueError(f"initial state {self.initial} is not one of the {n} states")
         if any(not 0 <= q < n for q in self.accepting):
             raise ValueError("an accepting state id is out of range")
-        seen: set[tuple[int, int]] = set()
         for e in self.edges:
             if not (0 <= e.source < n and 0 <= e.target < n):
                 raise ValueError(f"edge {e.source}->{e.target} leaves the {n} states")
-            if (e.source, e.target) in seen:
-                raise ValueError(f"two edges join {e.source} and {e.target}; merge their guards")
             if e.guard.is_false:
                 raise ValueError(f"edge {e.source}->{e.target} has a false guard")
             if not e.guard.atoms <= set(self.atoms):
                 unknown = ", ".join(sorted(e.guard.atoms - set(self.atoms)))
                 raise ValueError(f"edge {e.source}->{e.target} uses {unknown}, not in atoms")
-            seen.add((e.source, e.target))
 
     @property
     def num_states(self) -> int:
@@ -206,9 +205,9 @@ def _hoa_label(cube: Cube, index: dict[str, int]) -> str:
     return "&".join(text for _, text in sorted(lits))
 
 
-def _on_cycle(start: Any, step: Any) -> bool:
+def _on_cycle(start: N, step: Callable[[N], Iterable[N]]) -> bool:
     """Whether ``start`` can reach itself in one or more steps of ``step``."""
-    seen: set[Any] = set()
+    seen: set[N] = set()
     stack = list(step(start))
     while stack:
         node = stack.pop()

@@ -38,42 +38,67 @@ def simulation(ba: RawBuchi) -> list[set[int]]:
     """``sim[p]``: the states that directly simulate ``p`` (``p`` itself included).
 
     Greatest fixpoint by a worklist: a state is re-examined only when the simulators of
-    one of its successors shrink.
+    one of its successors shrink. Relations and cubes are bit masks; for each transition
+    of ``p`` and candidate ``q`` the targets that ``q`` reaches under a weaker cube are
+    cached, so most checks are one mask intersection and only the rest need a cover test.
     """
     n = ba.num_states
-    flat = [[(t, c) for t, cubes in ba.edges.get(p, {}).items() for c in cubes] for p in range(n)]
+    names = sorted(
+        {a for out in ba.edges.values() for cs in out.values() for c in cs for a in c.atoms}
+    )
+    bit = {a: 1 << i for i, a in enumerate(names)}
+    flat: list[list[tuple[int, Cube, int, int]]] = []
     pred: list[set[int]] = [set() for _ in range(n)]
     for p in range(n):
-        for t, _ in flat[p]:
+        row = []
+        for t, cubes in ba.edges.get(p, {}).items():
             pred[t].add(p)
-    sim = [{q for q in range(n) if p not in ba.accepting or q in ba.accepting} for p in range(n)]
+            for c in cubes:
+                row.append((t, c, sum(bit[a] for a in c.pos), sum(bit[a] for a in c.neg)))
+        flat.append(row)
+    accepting_mask = sum(1 << q for q in ba.accepting)
+    everyone = (1 << n) - 1
+    sim = [accepting_mask if p in ba.accepting else everyone for p in range(n)]
+    implied: dict[tuple[int, int, int], int] = {}
+
+    def answers(p: int, q: int) -> bool:
+        for i, (target, cube, pos, neg) in enumerate(flat[p]):
+            key = (p, i, q)
+            weaker = implied.get(key)
+            if weaker is None:
+                weaker = 0
+                for t, _, pos2, neg2 in flat[q]:
+                    if not (pos2 & ~pos or neg2 & ~neg):
+                        weaker |= 1 << t
+                implied[key] = weaker
+            good = sim[target]
+            if weaker & good:
+                continue
+            candidates = [
+                c
+                for t, c, pos2, neg2 in flat[q]
+                if good >> t & 1 and not (pos2 & neg or neg2 & pos)
+            ]
+            if not covers(candidates, cube):
+                return False
+        return True
+
     queue = list(range(n))
     queued = set(queue)
     while queue:
         p = queue.pop()
         queued.discard(p)
-        removed = {q for q in sim[p] if q != p and not _answers(flat[p], flat[q], sim)}
+        removed = 0
+        for q in range(n):
+            if q != p and sim[p] >> q & 1 and not answers(p, q):
+                removed |= 1 << q
         if removed:
-            sim[p] -= removed
+            sim[p] &= ~removed
             for r in pred[p]:
                 if r not in queued:
                     queued.add(r)
                     queue.append(r)
-    return sim
-
-
-def _answers(
-    p_out: list[tuple[int, Cube]], q_out: list[tuple[int, Cube]], sim: list[set[int]]
-) -> bool:
-    """Whether ``q`` can answer every transition of ``p`` with one into a simulating target."""
-    for target, cube in p_out:
-        simulators = sim[target]
-        answers = [c for t, c in q_out if t in simulators]
-        if any(cube.implies(c) for c in answers):
-            continue
-        if not covers(answers, cube):
-            return False
-    return True
+    return [{q for q in range(n) if sim[p] >> q & 1} for p in range(n)]
 
 
 def quotient(ba: RawBuchi, sim: list[set[int]]) -> RawBuchi:

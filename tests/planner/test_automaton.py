@@ -116,7 +116,6 @@ def test_distances_to_acceptance() -> None:
         ({"initial": 5}, "initial state"),
         ({"accepting": frozenset({7})}, "accepting"),
         ({"edges": (Edge(0, Guard.TRUE, 9),)}, "leaves"),
-        ({"edges": (Edge(0, Guard.TRUE, 0), Edge(0, lit("a"), 0))}, "merge their guards"),
         ({"edges": (Edge(0, Guard.FALSE, 0),)}, "false guard"),
         ({"edges": (Edge(0, lit("z"), 0),)}, "not in atoms"),
     ],
