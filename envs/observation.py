@@ -212,11 +212,11 @@ class ObservationBuilder:
         self._inv_range = 1.0 / lookahead_range
         self.heading = HEADING_FEATURES.get(robot.name)
         flat = np.asarray(centers, dtype=float)
-        # _ahead[i + 1]: the flattened centres of the balls after progress index i.
-        self._ahead: list[list[float]] = []
+        # _ahead[i + 1]: the centres of the balls after progress index i, as tuples.
+        self._ahead: list[list[tuple[float, ...]]] = []
         for i in range(-1, self.num_balls):
             idx = np.minimum(np.arange(i + 1, i + 1 + self.lookahead), self.num_balls - 1)
-            self._ahead.append(flat[idx].ravel().tolist())
+            self._ahead.append([tuple(c) for c in flat[idx].tolist()])
         self.rays = rays
         self.size = self.state_dim + 1 + self.lookahead * self.dim + (rays.count if rays else 0)
         self.space = spaces.Box(-1.0, 1.0, shape=(self.size,), dtype=np.float32)
@@ -224,31 +224,28 @@ class ObservationBuilder:
     def build(self, raw: Float32Array, x: Sequence[float], index: int) -> Float32Array:
         """The observation for robot features ``raw``, position ``x`` and progress ``index``."""
         values = raw.tolist()
-        out = [v * s + o for v, s, o in zip(values, self._scale, self._offset, strict=True)]
+        out = [v * s + o for v, s, o in zip(values, self._scale, self._offset, strict=False)]
         out.append((index + 1) * self._inv_m)
         heading = self.heading
         rotation: tuple[float, float] | None = None
         if heading is not None:
             rotation = (values[heading[0]], values[heading[1]])
         if self.lookahead:
-            ahead = self._ahead[index + 1]
             inv = self._inv_range
             if self.dim == 2:
                 x0, x1 = x[0], x[1]
                 c, s = rotation if rotation is not None else (1.0, 0.0)
-                for j in range(0, len(ahead), 2):
-                    dx, dy = ahead[j] - x0, ahead[j + 1] - x1
+                for cx, cy in self._ahead[index + 1]:
+                    dx, dy = cx - x0, cy - x1
                     u, v = (c * dx + s * dy) * inv, (c * dy - s * dx) * inv
                     out.append(u if -1.0 <= u <= 1.0 else (1.0 if u > 0.0 else -1.0))
                     out.append(v if -1.0 <= v <= 1.0 else (1.0 if v > 0.0 else -1.0))
             else:
-                d = self.dim
-                for j, c in enumerate(ahead):
-                    u = (c - x[j % d]) * inv
-                    out.append(u if -1.0 <= u <= 1.0 else (1.0 if u > 0.0 else -1.0))
-        obs = np.array(out, dtype=np.float32)
+                for centre in self._ahead[index + 1]:
+                    for cj, xj in zip(centre, x, strict=False):
+                        u = (cj - xj) * inv
+                        out.append(u if -1.0 <= u <= 1.0 else (1.0 if u > 0.0 else -1.0))
         if self.rays is not None:
             ranges = self.rays.cast(x, rotation if self.dim == 2 else None)
-            tail = np.minimum(ranges * (1.0 / self.rays.max_range), 1.0)
-            obs = np.concatenate([obs, tail.astype(np.float32)])
-        return obs
+            out.extend(np.clip(ranges * (1.0 / self.rays.max_range), 0.0, 1.0).tolist())
+        return np.array(out, dtype=np.float32)

@@ -142,6 +142,23 @@ def test_check_env_every_robot_and_reward(
     check_env(env, warn=True)
 
 
+@pytest.mark.parametrize(
+    ("model", "dim", "options"),
+    [
+        ("unicycle", 2, {"observation": "paper", "rays": 5}),
+        ("quadrotor", 3, {"rays": 6, "lookahead": 5}),
+        ("unicycle", 2, {"curriculum": 0.7, "start_noise": 0.4, "heading_noise": math.pi}),
+        ("racecar", 2, {"min_forward": 0.1, "stall_steps": 3, "stall_penalty": -0.2}),
+    ],
+)
+def test_check_env_with_options(
+    envs: list[NavEnv], model: str, dim: int, options: dict[str, Any]
+) -> None:
+    env = build_env(model, dim, "rrt", 0.15 if model == "quadrotor" else 0.2, **options)
+    envs.append(env)
+    check_env(env, warn=True)
+
+
 def test_gymnasium_make_builds_the_registered_env() -> None:
     world, plan = planned(2, INFINITE)
     env = gym.make(
