@@ -24,11 +24,11 @@ from envs.rewards import EnvConfigError, RegionTest, RewardConfig, reward_config
 from envs.robots import Robot, RobotConfigError, make_robot, robot_class
 from envs.robots.racecar import WHEEL_RADIUS, RacecarParams
 from envs.spec import RobotSpec
-from planner.decompose import SubTask
 from planner.guidance import Guide, ProgressTracker
 from planner.world import World
 
 if TYPE_CHECKING:
+    from planner.decompose import SubTask
     from planner.plan import MissionPlan
 
 ENV_ID = "ltlnav/Nav-v0"
@@ -314,11 +314,11 @@ def default_max_steps(legs: Sequence[Leg], robot: Robot, time_factor: float) -> 
 
 
 def _subtask(subtask: SubTask | int | None, plan: MissionPlan | None) -> SubTask:
-    if isinstance(subtask, SubTask):
-        return subtask
     if subtask is None:
         raise EnvConfigError("subtask", "this reward mode trains one sub-task: pass one")
-    if isinstance(subtask, int | np.integer) and not isinstance(subtask, bool):
+    if isinstance(subtask, bool):
+        raise EnvConfigError("subtask", f"expected a SubTask or an index, got {subtask!r}")
+    if isinstance(subtask, int | np.integer):
         if plan is None:
             raise EnvConfigError("subtask", "a sub-task index needs plan=")
         if not 0 <= subtask < len(plan.subtasks):
@@ -326,6 +326,9 @@ def _subtask(subtask: SubTask | int | None, plan: MissionPlan | None) -> SubTask
                 "subtask", f"index {subtask} out of range: the plan has {len(plan.subtasks)}"
             )
         return plan.subtasks[int(subtask)]
+    # Checked by shape, not class: importing planner.decompose would pull in the planner.
+    if all(hasattr(subtask, a) for a in ("start", "path", "goal", "nba_state", "next_nba_state")):
+        return subtask
     raise EnvConfigError("subtask", f"expected a SubTask or an index, got {subtask!r}")
 
 

@@ -50,12 +50,12 @@ from envs.rewards import (
 )
 from envs.robots import Robot
 from planner.automaton import Buchi
-from planner.decompose import SubTask
 from planner.guidance import Guide, ProgressTracker
 from planner.world import World
 
 if TYPE_CHECKING:
     from envs.factory import EnvOptions
+    from planner.decompose import SubTask
 
 
 @dataclass(eq=False)
