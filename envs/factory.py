@@ -1,10 +1,11 @@
-"""``make_env``: the navigation env of one sub-task of a mission, and its Gymnasium id.
+"""``make_env``: the navigation env of one sub-task of a mission, its options and Gymnasium id.
 
 ``make_env(mission, subtask, reward="rrt", **options)`` reads only the mission's ``world`` (a
 ``WorldSpec``-like object with ``build(keep_clear=...)``) and ``robot`` (``RobotSpec``): the
 envs layer never imports ``workers``, so any object of the ``MissionLike`` shape will do. It is
 also registered as ``ltlnav/Nav-v0``: ``gymnasium.make("ltlnav/Nav-v0", mission=m,
-subtask=s, reward="rrt", ...)`` takes the same arguments.
+subtask=s, reward="rrt", ...)`` takes the same arguments. ``EnvOptions`` documents every
+option; ``build_course`` turns sub-tasks into the env's checked guides (``Leg``).
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ guide with the progress index set to match) and ends when
 * the judge of the reward mode says the goal is reached (the goal region contains the robot's
   point; ``tl``/``g-rrt``: the automaton made the sub-task's transition(s)): terminated,
   ``R++``, ``is_success`` True; an automaton violation ends like a crash;
-* optionally, no new r-ball was reached for ``stall_steps`` steps (see ``EnvOptions``);
+* optionally, no new r-ball was reached for ``stall_steps`` steps (see ``envs.factory.EnvOptions``);
 * the step limit is hit: truncated, ``is_success`` False.
 
 The progress index ``i_t`` and ``D_min`` come from ``planner.guidance.ProgressTracker``; the
