@@ -12,7 +12,8 @@ planned through it with RRT*, the same seeded random actions (forward-biased) dr
 ``overhead`` is the extra time per step of ``env rrt`` over ``bare`` (observation layout,
 progress, reward, Gymnasium API); ``reward`` is the part of it spent in the progress tracker,
 the goal test and the reward itself, replayed on the positions of the ``env rrt`` run.
-There is no batched env: every figure is one env stepped from Python. Run as ``.venv/bin/python bench/envs.py [--quick]``.
+There is no batched env: every figure is one env stepped from Python.
+Run as ``.venv/bin/python bench/envs.py [--quick]``.
 """
 
 from __future__ import annotations
