@@ -84,6 +84,23 @@ def unknown_label_problems(task: str, defined: Sequence[str]) -> list[tuple[str,
     return problems
 
 
+class _WorldCache:
+    """The built world and the (world JSON, start) it was built from.
+
+    All caches compare equal so that two specs with the same fields are equal whether or not
+    their worlds were built.
+    """
+
+    def __init__(self) -> None:
+        self.key: tuple[str, tuple[float, ...]] | None = None
+        self.world: World | None = None
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, _WorldCache)
+
+    __hash__ = None  # type: ignore[assignment]
+
+
 class MissionSpec(BaseModel):
     """A whole mission: where (world), who (robot), what (task) and how to plan it."""
 
@@ -103,8 +120,7 @@ class MissionSpec(BaseModel):
         default_factory=PlannerSpec, description="Optional planner tuning (seed, eta, ...)."
     )
 
-    _world: World | None = PrivateAttr(default=None)
-    _world_key: tuple[str, tuple[float, ...]] | None = PrivateAttr(default=None)
+    _cache: _WorldCache = PrivateAttr(default_factory=lambda: _WorldCache())
 
     @field_validator("task")
     @classmethod
@@ -127,10 +143,11 @@ class MissionSpec(BaseModel):
     def build_world(self) -> World:
         """The planner's world, generated obstacles kept clear of the robot's start; cached."""
         key = self._world_cache_key()
-        if self._world is None or self._world_key != key:
-            self._world = self.world.build(keep_clear=[self.robot.position()])
-            self._world_key = key
-        return self._world
+        cache = self._cache
+        if cache.world is None or cache.key != key:
+            cache.world = self.world.build(keep_clear=[self.robot.position()])
+            cache.key = key
+        return cache.world
 
     @model_validator(mode="after")
     def _consistent(self) -> MissionSpec:
