@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import copy
 import json
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -348,3 +350,9 @@ def test_start_position_and_dimension() -> None:
     assert np.array_equal(robot.position(), [1.0, 2.0])
     assert robot.radius == 0.2 and robot.params == {}
     assert RobotSpec(model="point", start=[1, 2, 3]).workspace_dim == 3
+
+
+def test_validation_needs_no_simulator() -> None:
+    code = "import sys, workers.mission; print(sorted({'torch', 'pybullet'} & set(sys.modules)))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
