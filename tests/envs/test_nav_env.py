@@ -6,6 +6,7 @@ The helpers at the top (worlds, missions, planned missions) are shared with
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -17,7 +18,7 @@ import numpy as np
 import pytest
 from stable_baselines3.common.env_checker import check_env
 
-from envs.factory import ENV_ID, EnvOptions, make_env
+from envs.factory import ENV_ID, EnvOptions, make_env, split_subtask
 from envs.nav_env import NavEnv
 from envs.observation import RayCaster
 from envs.rewards import REWARD_MODES, EnvConfigError
@@ -517,3 +518,31 @@ def test_options_dataclass_documents_every_field() -> None:
         and isinstance(cls.body[i + 1].value, ast.Constant)  # type: ignore[attr-defined]
     }
     assert documented == set(EnvOptions.field_names())
+
+
+def test_split_subtask_into_shorter_legs(envs: list[NavEnv]) -> None:
+    world, plan = planned(2, FINITE)
+    sub = plan.subtasks[0]
+    pieces = split_subtask(sub, 3.0)
+    length = float(np.linalg.norm(np.diff(sub.path, axis=0), axis=1).sum())
+    assert len(pieces) == math.ceil(length / 3.0) >= 2
+    assert np.array_equal(pieces[0].start, sub.start) and np.array_equal(
+        pieces[-1].path[-1], sub.path[-1]
+    )
+    for a, b in itertools.pairwise(pieces):
+        assert (
+            np.array_equal(a.path[-1], b.start) and a.goal == "" and a.next_nba_state == a.nba_state
+        )
+    for p in pieces:
+        piece_length = float(np.linalg.norm(np.diff(p.path, axis=0), axis=1).sum())
+        assert piece_length == pytest.approx(length / len(pieces))
+    assert (pieces[-1].goal, pieces[-1].next_nba_state) == (sub.goal, sub.next_nba_state)
+    # A piece without a goal region succeeds in the last ball of its guide.
+    env = make_env(mission("point", 2), pieces[0], world=world, plan=plan)
+    envs.append(env)
+    end = pieces[0].path[-1]
+    env.reset(seed=0, options={"position": end - 0.05 * (end - pieces[0].path[-2])})
+    _, reward, terminated, _, info = env.step(np.zeros(2))
+    assert terminated and info["is_success"] is True and reward == 2.0 and info["d"] == 0.0
+    with pytest.raises(EnvConfigError, match="max_length"):
+        split_subtask(sub, 0.0)
