@@ -1,0 +1,1 @@
+"""ltlnav service: the command line now; the REST API, database and dashboard later."""

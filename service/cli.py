@@ -1,0 +1,144 @@
+"""The ``ltlnav`` command line: one Typer app; later issues add their commands here."""
+
+from __future__ import annotations
+
+import json
+import sys
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import typer
+
+from planner.errors import LtlnavError, PlanningError
+from planner.ltl import parse
+from planner.translate import translate
+
+app = typer.Typer(
+    name="ltlnav",
+    help="Turn LTL robot missions into plans and trained, verified control policies.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+
+EXIT_BAD_INPUT = 2
+EXIT_INFEASIBLE = 3
+
+
+class AutomatonFormat(StrEnum):
+    hoa = "hoa"
+    dot = "dot"
+    json = "json"
+
+
+def _fail(error: LtlnavError) -> typer.Exit:
+    typer.echo(f"error: {error}", err=True)
+    code = EXIT_INFEASIBLE if isinstance(error, PlanningError) else EXIT_BAD_INPUT
+    return typer.Exit(code)
+
+
+@app.command("ltl2ba")
+def ltl2ba(
+    formula: Annotated[str, typer.Argument(help="LTL formula, spin or letter syntax.")],
+    output_format: Annotated[
+        AutomatonFormat, typer.Option("--format", "-f", help="Output format.")
+    ] = AutomatonFormat.hoa,
+) -> None:
+    """Translate an LTL formula into a Büchi automaton and print it (HOA v1 by default)."""
+    try:
+        automaton = translate(parse(formula))
+    except LtlnavError as error:
+        raise _fail(error) from error
+    if output_format is AutomatonFormat.hoa:
+        typer.echo(automaton.to_hoa(name=formula), nl=False)
+    elif output_format is AutomatonFormat.dot:
+        typer.echo(automaton.to_dot(), nl=False)
+    else:
+        typer.echo(json.dumps(automaton.to_json(), indent=2))
+
+
+@app.command("validate")
+def validate(
+    mission: Annotated[Path, typer.Argument(help="Mission file (YAML or JSON).")],
+) -> None:
+    """Check a mission file and report every problem with its field path."""
+    from workers.mission import load_mission
+
+    try:
+        spec = load_mission(mission)
+    except LtlnavError as error:
+        raise _fail(error) from error
+    typer.echo(
+        f"{mission}: valid mission '{spec.name}' ({len(spec.world.bounds)}D, {spec.robot.model})"
+    )
+
+
+@app.command("plan")
+def plan(
+    mission: Annotated[Path, typer.Argument(help="Mission file (YAML or JSON).")],
+    json_out: Annotated[Path | None, typer.Option("--json", help="Write the plan as JSON.")] = None,
+    plot_out: Annotated[Path | None, typer.Option("--plot", help="Write a picture (PNG).")] = None,
+    seed: Annotated[int | None, typer.Option(help="Override planner.seed.")] = None,
+) -> None:
+    """Plan a mission: formula -> Büchi automaton -> pruned -> TL-RRT* lasso -> sub-tasks."""
+    from planner.plan import plan_mission, verify_plan
+    from workers.mission import load_mission
+
+    try:
+        spec = load_mission(mission)
+        options = spec.planner if seed is None else spec.planner.model_copy(update={"seed": seed})
+        world = spec.build_world()
+        result = plan_mission(world, spec.task, spec.robot.position(), spec.robot.radius, options)
+    except LtlnavError as error:
+        raise _fail(error) from error
+    problems = verify_plan(result, world, spec.robot.radius)
+    if problems:
+        typer.echo(
+            "error: internal check of the plan failed:\n  " + "\n  ".join(problems), err=True
+        )
+        raise typer.Exit(1)
+    _print_summary(result)
+    if json_out is not None:
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(result.to_json(), indent=1))
+        typer.echo(f"plan written to {json_out}")
+    if plot_out is not None:
+        from planner.plot import plot_plan
+
+        plot_out.parent.mkdir(parents=True, exist_ok=True)
+        plot_plan(world, result, plot_out, title=spec.name)
+        typer.echo(f"picture written to {plot_out}")
+
+
+def _print_summary(result: object) -> None:
+    from planner.plan import MissionPlan
+
+    assert isinstance(result, MissionPlan)
+    lasso = result.lasso
+    typer.echo(
+        f"automaton: {result.nba.num_states} states / {result.nba.num_transitions} transitions, "
+        f"pruned {result.pruned.num_states} / {result.pruned.num_transitions} "
+        f"({result.translation_seconds * 1000:.0f} ms)"
+    )
+    typer.echo(
+        f"lasso: prefix {lasso.prefix_cost:.2f} ({len(lasso.prefix)} waypoints), "
+        f"suffix {lasso.suffix_cost:.2f} ({len(lasso.suffix)} waypoints), "
+        f"cost {lasso.cost:.2f}, found in {result.seconds:.2f} s"
+    )
+    for sub in result.subtasks:
+        length = float(np.sum(np.linalg.norm(np.diff(sub.path, axis=0), axis=1)))
+        typer.echo(f"  sub-task {sub.index} [{sub.phase}] -> {sub.goal}: {length:.2f} long")
+
+
+def main() -> None:
+    """Console-script entry point."""
+    try:
+        app()
+    except KeyboardInterrupt:
+        sys.exit(130)
+
+
+if __name__ == "__main__":
+    main()
