@@ -71,6 +71,22 @@ class RobotSpec(BaseModel):
             )
         return start
 
+    @field_validator("params")
+    @classmethod
+    def _known_params(cls, params: dict[str, float], info: ValidationInfo) -> dict[str, float]:
+        model = info.data.get("model")
+        if model is None:
+            return params
+        from envs.robots import RobotConfigError, robot_params
+
+        try:
+            robot_params(model, params)
+        except RobotConfigError as error:
+            raise PydanticCustomError(
+                "robot_params", "{reason}", {"reason": error.reason}
+            ) from None
+        return params
+
     @property
     def workspace_dim(self) -> int:
         """Dimension of the workspace the robot moves in (2 or 3)."""

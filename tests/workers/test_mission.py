@@ -356,3 +356,21 @@ def test_validation_needs_no_simulator() -> None:
     code = "import sys, workers.mission; print(sorted({'torch', 'pybullet'} & set(sys.modules)))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_unknown_robot_parameter_names_the_known_ones() -> None:
+    data = {
+        "task": "<>g1",
+        "robot": {"model": "unicycle", "start": [0, 0], "params": {"top_speed": 2.0}},
+        "world": {
+            "bounds": [[-5, 5], [-5, 5]],
+            "regions": {"g1": {"ball": {"center": [3, 3], "radius": 1}}},
+        },
+    }
+    with pytest.raises(MissionError) as caught:
+        parse_mission(data)
+    message = str(caught.value)
+    assert "robot.params" in message and "top_speed" in message and "max_speed" in message
+    data["robot"]["params"] = {"max_speed": -1.0}  # type: ignore[index]
+    with pytest.raises(MissionError, match=r"robot\.params"):
+        parse_mission(data)
