@@ -44,6 +44,7 @@ from planner.shapes import Ball, Box, Shape
 from planner.world import World
 
 RADIUS = 0.1
+REPEATS = 3
 
 
 @dataclass(frozen=True)
@@ -177,11 +178,15 @@ def run(case: Case, quick: bool) -> list[str]:
     envs = [make_env(mission, sub, "rrt", world=world, rays=r) for r in (0, 8)]
     try:
         acts = actions(steps, robot.action_dim, seed=2)
-        bare = bare_rate(robot, path[0], acts)
         trace: list[list[float]] = []
-        full = env_rate(envs[0], acts, trace)
-        rays = env_rate(envs[1], acts)
-        reward = reward_seconds(envs[0], trace) / len(trace)
+        bare = full = rays = 0.0
+        reward = float("inf")
+        # Best of REPEATS interleaved runs: the machine is shared, and noise only slows runs.
+        for k in range(REPEATS):
+            bare = max(bare, bare_rate(robot, path[0], acts))
+            full = max(full, env_rate(envs[0], acts, trace if k == 0 else None))
+            rays = max(rays, env_rate(envs[1], acts))
+            reward = min(reward, reward_seconds(envs[0], trace) / len(trace))
     finally:
         robot.close()
         for env in envs:
@@ -214,7 +219,7 @@ def main() -> None:
         rows.append(run(case, args.quick))
         print(" | ".join(rows[-1]), file=sys.stderr, flush=True)
     widths = [max(len(r[k]) for r in rows) for k in range(len(header))]
-    print("agent steps per second, single env, one core (OMP_NUM_THREADS=1)")
+    print(f"agent steps per second, single env, one core, best of {REPEATS} (OMP_NUM_THREADS=1)")
     for k, row in enumerate(rows):
         print("  ".join(v.rjust(w) for v, w in zip(row, widths, strict=True)))
         if k == 0:
