@@ -17,12 +17,21 @@ from __future__ import annotations
 from planner.gba import RawBuchi, add_cube
 from planner.guard import Cube, covers
 
+SIMULATION_BUDGET = 150_000
+"""Largest ``states x cubes`` for which the quadratic simulation is computed (~0.5 s)."""
+
 
 def reduce_buchi(ba: RawBuchi) -> RawBuchi:
-    """Apply trimming, simulation quotient and little-brother pruning until stable."""
+    """Apply trimming, simulation quotient and little-brother pruning until stable.
+
+    Automata too large for the simulation budget (rare: deeply nested formulas with many
+    until operators) get only the cheap merge of identical states.
+    """
     ba = trim(merge_identical(trim(ba)))
     while True:
         size = (ba.num_states, _num_cubes(ba))
+        if size[0] * size[1] > SIMULATION_BUDGET:
+            return ba
         sim = simulation(ba)
         ba = trim(quotient(ba, sim))
         ba = trim(prune_little_brothers(ba, simulation(ba)))
@@ -34,7 +43,7 @@ def _num_cubes(ba: RawBuchi) -> int:
     return sum(len(cubes) for out in ba.edges.values() for cubes in out.values())
 
 
-def simulation(ba: RawBuchi) -> list[set[int]]:
+def simulation(ba: RawBuchi, candidates: list[int] | None = None) -> list[set[int]]:
     """``sim[p]``: the states that directly simulate ``p`` (``p`` itself included).
 
     Greatest fixpoint by a worklist: a state is re-examined only when the simulators of
@@ -59,6 +68,8 @@ def simulation(ba: RawBuchi) -> list[set[int]]:
     accepting_mask = sum(1 << q for q in ba.accepting)
     everyone = (1 << n) - 1
     sim = [accepting_mask if p in ba.accepting else everyone for p in range(n)]
+    if candidates is not None:
+        sim = [(s & c) | 1 << p for p, (s, c) in enumerate(zip(sim, candidates, strict=True))]
     implied: dict[tuple[int, int, int], int] = {}
 
     def answers(p: int, q: int) -> bool:
