@@ -129,7 +129,6 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.start = np.asarray(first.subtask.start, dtype=float).copy()
         self.start_heading = float(start_heading)
         centers = np.concatenate([leg.guide.centers for leg in self.legs])
-        self._centers = centers
         self.ray_caster: RayCaster | None = None
         if options.rays:
             rng_ = options.ray_range if options.ray_range is not None else world.diagonal / 8.0
