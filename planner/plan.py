@@ -1,7 +1,8 @@
 """From a world and an LTL task to a verified lasso plan cut into sub-tasks.
 
 :func:`plan_mission` runs the whole planner pipeline: parse and check the formula, translate it
-to a Büchi automaton, prune the transitions this world can never produce, plan a lasso with
+to a Büchi automaton, prune the transitions this world can never produce (and those into
+regions :mod:`planner.reachability` proves enclosed away from the start), plan a lasso with
 TL-RRT* and decompose it. :func:`verify_plan` re-checks, independently of the planner's own
 bookkeeping, every invariant the plan promises (issue section 6); an empty list means valid.
 Times are CPU seconds (``time.process_time``): the machine is shared and wall time is noisy.
@@ -23,6 +24,7 @@ from planner.ltl import check_mission_formula, parse
 from planner.ltl_semantics import holds_on_lasso
 from planner.options import PlannerSpec
 from planner.prune import has_accepting_run, prune
+from planner.reachability import restrict_to_reachable
 from planner.tl_rrt_star import Lasso, default_eta, plan_lasso
 from planner.translate import translate
 from planner.world import World
@@ -119,6 +121,7 @@ def plan_mission(
     opts = options if options is not None else PlannerSpec()
     t0 = time.process_time()
     nba, pruned = translate_task(task, world, clearance)
+    pruned = restrict_to_reachable(pruned, world, np.asarray(start, dtype=float), clearance)
     t_translate = time.process_time() - t0
     rng = np.random.default_rng(opts.seed)
     lasso = plan_lasso(world, pruned, np.asarray(start, dtype=float), clearance, opts, rng)
