@@ -57,6 +57,8 @@ class _Grid:
     """Cubic cells of edge ``h`` from ``lo``; cell ``k`` spans ``lo + h*k .. lo + h*(k+1)``."""
 
     def __init__(self, world: World, max_cells: int) -> None:
+        if max_cells < 1:
+            raise ValueError(f"max_cells must be at least 1, got {max_cells}")
         lo, hi = world.bounds[:, 0], world.bounds[:, 1]
         extent = hi - lo
         self.dim = world.dim
@@ -129,9 +131,9 @@ def _deep_inside(shape: Shape, p: FloatArray, margin: float) -> BoolArray:
         return np.asarray((r >= 0.0) & ((diff * diff).sum(axis=1) <= r * r))
     edge = _edge_distance(shape, p)
     inside = shape.contains(p, 0.0)
-    if margin >= 0.0:
+    if margin > 0.0:
         return np.asarray(inside | (edge <= margin))
-    return np.asarray(inside & (edge >= -margin))
+    return np.asarray(inside & (edge > -margin))
 
 
 def _blocked(world: World, grid: _Grid, clearance: float) -> BoolArray:
@@ -141,9 +143,7 @@ def _blocked(world: World, grid: _Grid, clearance: float) -> BoolArray:
     inner_hi = world.bounds[:, 1] - clearance
     for j in range(grid.dim):
         k = np.arange(grid.shape[j])
-        outside = (grid.corner(j, k + 1) < inner_lo[j] - grid.tol) | (
-            grid.corner(j, k) > inner_hi[j] + grid.tol
-        )
+        outside = (grid.corner(j, k + 1) < inner_lo[j]) | (grid.corner(j, k) > inner_hi[j])
         index: list[slice | np.ndarray] = [slice(None)] * grid.dim
         index[j] = outside
         blocked[tuple(index)] = True
@@ -165,7 +165,31 @@ def _blocked(world: World, grid: _Grid, clearance: float) -> BoolArray:
         inside = _deep_inside(shape, corners, margin)
         inside = inside.reshape(tuple(s.stop - s.start + 1 for s in cells))
         blocked[tuple(cells)] |= grid.all_corners(inside)
+        if isinstance(shape, Box):
+            blocked[tuple(cells)] |= _box_slabs(grid, shape, clearance, cells)
     return blocked
+
+
+def _box_slabs(grid: _Grid, box: Box, clearance: float, cells: list[slice]) -> BoolArray:
+    """Cells inside the box stretched by ``clearance`` along a single axis (the flat faces of
+    the inflated box), with no slack: the comparisons mirror, operation for operation, the
+    ones :meth:`World.in_collision` makes, and rounding is monotone, so no point of such a
+    cell can be judged free. This keeps walls flush with the bounds closed at clearance 0."""
+    within, stretched = [], []
+    for j, s in enumerate(cells):
+        k = np.arange(s.start, s.stop)
+        c_lo, c_hi = grid.corner(j, k), grid.corner(j, k + 1)
+        within.append((box.lo[j] <= c_lo) & (c_hi <= box.hi[j]))
+        stretched.append((box.lo[j] - c_lo <= clearance) & (c_hi - box.hi[j] <= clearance))
+    out = np.zeros(tuple(s.stop - s.start for s in cells), dtype=bool)
+    for j in range(grid.dim):
+        term = np.ones_like(out)
+        for i in range(grid.dim):
+            along = [1] * grid.dim
+            along[i] = -1
+            term &= (stretched[i] if i == j else within[i]).reshape(along)
+        out |= term
+    return out
 
 
 def _start_component(grid: _Grid, comp: np.ndarray, start: FloatArray) -> int:
@@ -260,13 +284,12 @@ def restrict_to_reachable(nba: Buchi, world: World, start: np.ndarray, clearance
         return reduced
     needed = [u for u in unreachable if not has_accepting_run(_without(nba, frozenset((u,))))]
     named = needed or unreachable
-    what = (
-        f"region {named[0]} cannot be reached from the start: it is"
-        if len(named) == 1
-        else f"regions {', '.join(named)} cannot be reached from the start: they are"
-    )
+    if len(named) == 1:
+        what, need = f"region {named[0]} cannot be reached from the start: it is", "it"
+    else:
+        what = f"regions {', '.join(named)} cannot be reached from the start: they are"
+        need = "them" if needed else "one of them"
     raise PlanningError(
-        f"the task is unsatisfiable from this start: {what} enclosed by obstacles "
-        f"(for a robot of radius {clearance:g}), and every accepting run of the task needs "
-        f"{'it' if len(named) == 1 else 'them'}"
+        f"{what} enclosed by obstacles (for a robot of radius {clearance:g}), and every "
+        f"accepting run of the task needs {need}"
     )

@@ -72,7 +72,9 @@ def test_the_needed_regions_are_named() -> None:
     with pytest.raises(PlanningError, match="region a cannot be reached") as err:
         plan_mission(world, "<>a && (<>b || <>c)", start, 0.1, QUICK)
     assert "region b" not in str(err.value)
-    with pytest.raises(PlanningError, match=r"regions a, b cannot be reached .* they are"):
+    with pytest.raises(
+        PlanningError, match=r"regions a, b cannot be reached .* they are .* needs one of them"
+    ):
         plan_mission(world, "<>a || <>b", start, 0.1, QUICK)
 
 
@@ -113,6 +115,17 @@ def test_bounds_close_an_enclosure() -> None:
     world = World(BOUNDS, shorter, {"corner": Box([8.5, 8.5], [9.5, 9.5])})
     assert unreachable_regions(world, START, 0.2, ["corner"]) == []
     assert unreachable_regions(world, START, 0.3, ["corner"]) == ["corner"]
+
+
+def test_wall_flush_with_the_bounds_at_zero_clearance() -> None:
+    unit = np.array([[0.0, 1.0], [0.0, 1.0]])
+    wall = Box([0.5, 0.0], [0.6, 1.0])
+    world = World(unit, [wall], {"left": Ball([0.2, 0.5], 0.1), "right": Ball([0.8, 0.5], 0.1)})
+    start = np.array([0.1, 0.1])
+    assert unreachable_regions(world, start, 0.0, world.region_names) == ["right"]
+    short = World(unit, [Box([0.5, 0.0], [0.6, 0.999])], world.regions)
+    for cells in (100, 250_000):
+        assert unreachable_regions(short, start, 0.0, short.region_names, cells) == []
 
 
 def test_non_convex_polygon_encloses_once_inflated() -> None:
