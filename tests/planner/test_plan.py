@@ -10,8 +10,9 @@ import pytest
 
 from planner.errors import FormulaError, PlanningError
 from planner.options import PlannerSpec
-from planner.plan import MissionPlan, plan_mission, verify_plan
+from planner.plan import MissionPlan, plan_mission, translate_task, verify_plan
 from planner.shapes import Ball, Box, Polygon
+from planner.tl_rrt_star import plan_lasso
 from planner.world import World
 
 
@@ -111,15 +112,26 @@ def test_bad_tasks() -> None:
         plan_mission(world, "[]<>(l1 && l2)", START, 0.0, QUICK)
 
 
-def test_unreachable_goal_is_a_planning_error() -> None:
-    world = World(
+def walled_world() -> World:
+    return World(
         np.array([[0.0, 1.0], [0.0, 1.0]]),
         [Box(np.array([0.5, 0.0]), np.array([0.6, 1.0]))],
         {"left": Ball(np.array([0.2, 0.5]), 0.1), "right": Ball(np.array([0.8, 0.5]), 0.1)},
     )
+
+
+def test_enclosed_goal_is_reported_before_sampling() -> None:
+    opts = PlannerSpec(max_iterations=500, time_limit=20.0)
+    with pytest.raises(PlanningError, match="region right cannot be reached"):
+        plan_mission(walled_world(), "<>left && <>right", np.array([0.1, 0.1]), 0.0, opts)
+
+
+def test_exhausted_budget_names_the_region_never_entered() -> None:
+    world = walled_world()
+    _, pruned = translate_task("<>left && <>right", world, 0.0)
     opts = PlannerSpec(max_iterations=500, time_limit=20.0)
     with pytest.raises(PlanningError, match="region right was never entered"):
-        plan_mission(world, "<>left && <>right", np.array([0.1, 0.1]), 0.0, opts)
+        plan_lasso(world, pruned, np.array([0.1, 0.1]), 0.0, opts)
 
 
 def corrupt(plan: MissionPlan) -> MissionPlan:
