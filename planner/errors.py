@@ -17,8 +17,13 @@ class FormulaError(LtlnavError):
     ``column`` is 1-based and points into ``formula``; ``expected`` says what the parser wanted.
     """
 
-    def __init__(self, message: str, formula: str = "", column: int | None = None,
-                 expected: str | None = None) -> None:
+    def __init__(
+        self,
+        message: str,
+        formula: str = "",
+        column: int | None = None,
+        expected: str | None = None,
+    ) -> None:
         self.formula = formula
         self.column = column
         self.expected = expected
