@@ -56,15 +56,27 @@ def _rewrite(f: Formula) -> Formula:
     return _weak_until(left, right)
 
 
+def _suffix_invariant(f: Formula) -> bool:
+    """Whether ``f`` holds on a word iff it holds on every suffix (``G F a``, ``F G a``, ...).
+
+    For such formulas ``X f = F f = G f = f``.
+    """
+    if isinstance(f, Const):
+        return True
+    if isinstance(f, Globally | Eventually):
+        return isinstance(f.arg, Globally | Eventually) and type(f.arg) is not type(f)
+    if isinstance(f, And | Or):
+        return _suffix_invariant(f.left) and _suffix_invariant(f.right)
+    return False
+
+
 def _next(a: Formula) -> Formula:
-    return a if isinstance(a, Const) else Next(a)
+    return a if _suffix_invariant(a) else Next(a)
 
 
 def _eventually(a: Formula) -> Formula:
-    if isinstance(a, Const | Eventually):
+    if isinstance(a, Eventually) or _suffix_invariant(a):
         return a
-    if isinstance(a, Globally) and isinstance(a.arg, Eventually):
-        return a  # F G F a = G F a
     if isinstance(a, Next):
         return Next(_eventually(a.arg))
     if isinstance(a, Until):
@@ -73,10 +85,10 @@ def _eventually(a: Formula) -> Formula:
 
 
 def _globally(a: Formula) -> Formula:
-    if isinstance(a, Const | Globally):
+    if isinstance(a, Globally) or _suffix_invariant(a):
         return a
-    if isinstance(a, Eventually) and isinstance(a.arg, Globally):
-        return a  # G F G a = F G a
+    if isinstance(a, Eventually):
+        return _infinitely_often(a.arg)
     if isinstance(a, And):
         return And(_globally(a.left), _globally(a.right))
     if isinstance(a, Next):
@@ -84,6 +96,34 @@ def _globally(a: Formula) -> Formula:
     if isinstance(a, Release):
         return _globally(a.right)
     return Globally(a)
+
+
+def _infinitely_often(a: Formula) -> Formula:
+    """``G F a``, split where possible: ``G F (a & F b) = G F a & G F b``.
+
+    Also ``G F X a = G F F a = G F a``. Each ``G F`` conjunct becomes one acceptance
+    condition of its own, which keeps goal sequences repeated forever small.
+    """
+    if isinstance(a, Next | Eventually):
+        return _infinitely_often(a.arg)
+    if _is_gf(a):
+        return a
+    if isinstance(a, And):
+        parts = _operands(a, And)
+        delayed = [p for p in parts if isinstance(p, Eventually) or _is_gf(p)]
+        if delayed:
+            core = [p for p in parts if p not in delayed]
+            out = [_infinitely_often(p) for p in delayed]
+            if core:
+                joined = core[0]
+                for p in core[1:]:
+                    joined = And(joined, p)
+                out.insert(0, Globally(Eventually(joined)))
+            result = out[0]
+            for p in out[1:]:
+                result = And(result, p)
+            return result
+    return Globally(Eventually(a))
 
 
 def _until(a: Formula, b: Formula) -> Formula:

@@ -171,6 +171,9 @@ def test_rewriting_rules() -> None:
     gf = simplify(to_nnf(parse("G F a & G F b")))
     assert gf == And(Globally(Eventually(a)), Globally(Eventually(b)))
     assert simplify(to_nnf(parse("G (F a & F b)"))) == gf
+    assert simplify(to_nnf(parse("G F (a & F b)"))) == gf
+    assert simplify(to_nnf(parse("G F X (a & F b)"))) == gf
+    assert simplify(to_nnf(parse("G F a | G F b"))) == Globally(Eventually(Or(a, b)))
 
 
 L = frozenset
