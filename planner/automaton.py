@@ -89,7 +89,8 @@ class Buchi:
         """Whether the automaton accepts ``prefix · cycle^ω``.
 
         Searches the product of states and word positions for a reachable accepting node
-        in the cycle part that lies on a cycle of the product.
+        that lies on a cycle of the product (such a cycle stays in the word's loop part).
+        Linear in the size of the product.
         """
         if not cycle:
             raise ValueError("the cycle of a lasso word must contain at least one letter")
@@ -101,18 +102,7 @@ class Buchi:
             j = i + 1 if i + 1 < len(word) else loop
             return [(p, j) for p in self.successors(q, word[i])]
 
-        start = (self.initial, 0)
-        reached = {start}
-        queue = deque([start])
-        while queue:
-            for nxt in step(queue.popleft()):
-                if nxt not in reached:
-                    reached.add(nxt)
-                    queue.append(nxt)
-        for node in sorted(reached):
-            if node[0] in self.accepting and node[1] >= loop and _on_cycle(node, step):
-                return True
-        return False
+        return any(q in self.accepting for q, _ in nodes_on_cycles([(self.initial, 0)], step))
 
     def distances_to_acceptance(self) -> dict[int, int]:
         """Fewest edges from each state to an accepting state that lies on a cycle.
@@ -120,8 +110,8 @@ class Buchi:
         States that cannot reach such a state are absent. TL-RRT* biases its sampling
         toward transitions that decrease this distance.
         """
-        succ: dict[int, list[int]] = {q: [e.target for e in self._out[q]] for q in self._ids}
-        targets = [q for q in sorted(self.accepting) if _on_cycle(q, lambda s: succ[s])]
+        cyclic = nodes_on_cycles(self._ids, lambda q: [e.target for e in self._out[q]])
+        targets = sorted(self.accepting & cyclic)
         pred: dict[int, list[int]] = {q: [] for q in self._ids}
         for e in self.edges:
             pred[e.target].append(e.source)
@@ -205,16 +195,49 @@ def _hoa_label(cube: Cube, index: dict[str, int]) -> str:
     return "&".join(text for _, text in sorted(lits))
 
 
-def _on_cycle(start: N, step: Callable[[N], Iterable[N]]) -> bool:
-    """Whether ``start`` can reach itself in one or more steps of ``step``."""
-    seen: set[N] = set()
-    stack = list(step(start))
-    while stack:
-        node = stack.pop()
-        if node == start:
-            return True
-        if node in seen:
+def nodes_on_cycles(starts: Iterable[N], step: Callable[[N], Iterable[N]]) -> set[N]:
+    """The nodes reachable from ``starts`` that lie on a cycle of the graph ``step``.
+
+    Iterative Tarjan: a node is on a cycle when its strongly connected component has
+    more than one node or a self-loop. ``step`` is called once per reachable node.
+    """
+    index: dict[N, int] = {}
+    low: dict[N, int] = {}
+    on_stack: set[N] = set()
+    stack: list[N] = []
+    succ: dict[N, list[N]] = {}
+    cyclic: set[N] = set()
+    for root in starts:
+        if root in index:
             continue
-        seen.add(node)
-        stack.extend(step(node))
-    return False
+        work: list[tuple[N, int]] = [(root, 0)]
+        while work:
+            node, i = work.pop()
+            if i == 0:
+                index[node] = low[node] = len(index)
+                stack.append(node)
+                on_stack.add(node)
+                succ[node] = list(step(node))
+            children = succ[node]
+            if i < len(children):
+                work.append((node, i + 1))
+                child = children[i]
+                if child not in index:
+                    work.append((child, 0))
+                elif child in on_stack:
+                    low[node] = min(low[node], index[child])
+                continue
+            if low[node] == index[node]:
+                component = []
+                while True:
+                    member = stack.pop()
+                    on_stack.discard(member)
+                    component.append(member)
+                    if member == node:
+                        break
+                if len(component) > 1 or node in succ[node]:
+                    cyclic.update(component)
+            if work:
+                parent = work[-1][0]
+                low[parent] = min(low[parent], low[node])
+    return cyclic

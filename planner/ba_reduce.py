@@ -14,6 +14,7 @@ and finally states that are unreachable or cannot reach an accepting cycle go.
 
 from __future__ import annotations
 
+from planner.automaton import nodes_on_cycles
 from planner.gba import RawBuchi, add_cube
 from planner.guard import Cube, covers
 
@@ -160,11 +161,12 @@ def trim(ba: RawBuchi) -> RawBuchi:
     """
     succ = {p: [t for t in out if out[t]] for p, out in ba.edges.items()}
     reach = _reachable([ba.initial], succ)
-    good = {
-        p
-        for p in ba.accepting
-        if p in reach and p in _reachable([t for t in succ.get(p, [])], succ)
-    }
+
+    def successors(p: int) -> list[int]:
+        return succ.get(p, [])
+
+    cyclic: set[int] = nodes_on_cycles([ba.initial], successors)
+    good = ba.accepting & cyclic
     pred: dict[int, list[int]] = {}
     for p in reach:
         for t in succ.get(p, []):
