@@ -35,6 +35,7 @@ from planner.ltl import (
     Release,
     Until,
     WeakUntil,
+    to_text,
 )
 
 Term = tuple[Cube, frozenset[int]]
@@ -66,8 +67,6 @@ class Vwaa:
 
     def name(self, q: int) -> str:
         """A readable name of state ``q`` (its formula)."""
-        from planner.ltl import to_text
-
         return to_text(self.formulas[q])
 
 
