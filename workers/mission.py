@@ -1,4 +1,4 @@
-"""The mission document: world, robot, task and planner options, validated as one model.
+"""The mission document: world, robot, task, planner and training options, validated as one model.
 
 ``MissionSpec`` composes the sections owned by each layer (``planner.spec.WorldSpec``,
 ``envs.spec.RobotSpec``, ``planner.options.PlannerSpec``) and adds the checks that need several
@@ -35,6 +35,7 @@ from planner.options import PlannerSpec
 from planner.spec import RESERVED_LABEL, WorldSpec, raise_problems
 from planner.world import World
 from workers.mission_errors import MissionError, problems_from_validation_error, read_document
+from workers.training_spec import TrainingSpec
 
 __all__ = ["MissionError", "MissionSpec", "load_mission", "parse_mission"]
 
@@ -118,6 +119,10 @@ class MissionSpec(BaseModel):
     )
     planner: PlannerSpec = Field(
         default_factory=PlannerSpec, description="Optional planner tuning (seed, eta, ...)."
+    )
+    training: TrainingSpec = Field(
+        default_factory=lambda: TrainingSpec(),
+        description="Optional training options (algorithm, budget, reward, hyperparameters).",
     )
 
     _cache: _WorldCache = PrivateAttr(default_factory=lambda: _WorldCache())

@@ -1,0 +1,384 @@
+"""The mission's ``training:`` section and the job that trains one sub-task.
+
+``TrainingSpec`` is what a user may set: the algorithm, the budget, evaluation, the reward mode
+and its constants, env options and stable-baselines3 hyperparameters under their RL-Zoo names
+(checked per algorithm: an unknown key is an error naming it and listing the valid ones).
+Reward and env defaults are not repeated here: an empty ``reward.constants`` or ``env`` takes
+``envs.rewards``' and ``envs.factory.EnvOptions``' own defaults.
+
+``SubtaskJob`` is everything one training job needs, as plain JSON (the service sends it through
+Celery): the mission document, the plan document (``plan_to_dict``) so that every job trains
+on the same guide, the sub-task index, the training spec and the seed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
+
+from envs.factory import EnvOptions
+from envs.rewards import REWARD_MODES, EnvConfigError, RewardConfig, reward_mode
+from planner.automaton import Buchi, Edge
+from planner.decompose import SubTask
+from planner.guard import Cube, Guard
+from planner.plan import MissionPlan
+from planner.spec import raise_problems
+from planner.tl_rrt_star import Lasso
+
+Algorithm = Literal["sac", "td3", "ddpg", "ppo"]
+RewardModeName = Literal["rrt", "rrt-paper", "g-rrt", "ned", "tl"]
+
+_OFF_POLICY = frozenset(
+    {
+        "learning_rate",
+        "buffer_size",
+        "learning_starts",
+        "batch_size",
+        "tau",
+        "gamma",
+        "train_freq",
+        "gradient_steps",
+        "optimize_memory_usage",
+        "policy_kwargs",
+        "noise_type",
+        "noise_std",
+    }
+)
+HYPERPARAMETERS: dict[str, frozenset[str]] = {
+    "sac": _OFF_POLICY
+    | {
+        "ent_coef",
+        "target_update_interval",
+        "target_entropy",
+        "use_sde",
+        "sde_sample_freq",
+        "use_sde_at_warmup",
+    },
+    "td3": _OFF_POLICY | {"policy_delay", "target_policy_noise", "target_noise_clip"},
+    "ddpg": _OFF_POLICY,
+    "ppo": frozenset(
+        {
+            "learning_rate",
+            "n_steps",
+            "batch_size",
+            "n_epochs",
+            "gamma",
+            "gae_lambda",
+            "clip_range",
+            "clip_range_vf",
+            "normalize_advantage",
+            "ent_coef",
+            "vf_coef",
+            "max_grad_norm",
+            "use_sde",
+            "sde_sample_freq",
+            "target_kl",
+            "policy_kwargs",
+        }
+    ),
+}
+"""Valid hyperparameter names per algorithm (RL-Zoo spelling; ``noise_type``/``noise_std``
+build the off-policy action noise, ``normal`` or ``ornstein-uhlenbeck``)."""
+
+POLICY_KWARGS = frozenset(
+    {"net_arch", "activation_fn", "log_std_init", "n_critics", "share_features_extractor"}
+)
+"""Valid keys of ``hyperparams.policy_kwargs``; ``activation_fn`` is a name (``ACTIVATIONS``)."""
+
+ACTIVATIONS = ("relu", "tanh", "elu", "leaky_relu", "gelu", "silu")
+"""Activation names accepted for ``policy_kwargs.activation_fn`` (``torch.nn`` modules)."""
+
+DEFAULT_POLICY_KWARGS: dict[str, Any] = {"net_arch": [64, 64, 64], "activation_fn": "relu"}
+"""Actor and critic MLP [64, 64, 64] with ReLU, as in Cai et al.; keys given in
+``hyperparams.policy_kwargs`` override these one by one. Every other hyperparameter not given
+takes stable-baselines3's default for the algorithm."""
+
+
+class RewardSpec(BaseModel):
+    """Reward mode and constants (constants not given take the mode's defaults)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    mode: RewardModeName = Field(
+        "rrt",
+        description="'rrt' (default, the guide-distance reward), 'rrt-paper' (Cai et al.'s exact "
+        "reward), 'g-rrt' (one guide for the whole lasso), 'ned' (negative distance), 'tl' "
+        "(sparse automaton reward). See envs.rewards.",
+    )
+    constants: dict[str, float] = Field(
+        default_factory=dict,
+        description="Reward constants over the mode's defaults: crash, goal, progress, "
+        "step_cost, distance (each mode uses some of them).",
+    )
+
+    def config(self) -> RewardConfig:
+        """The constants as an ``envs.rewards.RewardConfig``."""
+        return RewardConfig(**self.constants)
+
+    @model_validator(mode="after")
+    def _known(self) -> RewardSpec:
+        known = [f.name for f in dataclasses.fields(RewardConfig)]
+        problems = [
+            (f"constants.{k}", f"unknown reward constant; known: {', '.join(known)}")
+            for k in self.constants
+            if k not in known
+        ]
+        raise_problems(problems)
+        try:
+            reward_mode(self.mode, self.config())
+        except EnvConfigError as err:
+            raise_problems([(err.field.replace("rewards.", "constants."), err.reason)])
+        assert self.mode in REWARD_MODES
+        return self
+
+
+class TrainingSpec(BaseModel):
+    """How to train every sub-task of a mission (the mission's ``training:`` section)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    algorithm: Algorithm = Field("sac", description="stable-baselines3 algorithm.")
+    n_timesteps: int = Field(150_000, ge=1, description="Budget of env steps per sub-task.")
+    eval_freq: int = Field(5_000, ge=1, description="Env steps between periodic evaluations.")
+    eval_episodes: int = Field(20, ge=1, description="Episodes of each periodic evaluation.")
+    final_eval_episodes: int = Field(
+        200, ge=1, description="Episodes of the final sub-task evaluation (200 in the paper)."
+    )
+    target_success: float = Field(
+        0.95, gt=0, le=1, description="Stop early once a periodic evaluation reaches this rate."
+    )
+    checkpoint_freq: int | None = Field(
+        None, ge=1, description="Env steps between checkpoints (None: every eval_freq steps)."
+    )
+    mission_episodes: int = Field(
+        100, ge=1, description="Whole-mission rollouts of the concatenated policy."
+    )
+    cycles: int = Field(3, ge=1, description="Suffix cycles of a whole-mission rollout.")
+    seed: int = Field(0, ge=0, description="Seed of the agents and the env resets.")
+    torch_threads: int = Field(
+        1, ge=1, description="torch threads per job (more is slower on a shared machine)."
+    )
+    reward: RewardSpec = Field(default_factory=lambda: RewardSpec(), description="Reward.")
+    env: dict[str, Any] = Field(
+        default_factory=dict,
+        description="envs.factory.EnvOptions fields (max_steps, observation, lookahead, rays, "
+        "curriculum, stall_steps, min_forward, ...); unset ones take EnvOptions' defaults.",
+    )
+    hyperparams: dict[str, Any] = Field(
+        default_factory=dict,
+        description="stable-baselines3 hyperparameters by RL-Zoo name (HYPERPARAMETERS lists "
+        "the valid ones per algorithm); policy_kwargs defaults to DEFAULT_POLICY_KWARGS.",
+    )
+
+    @field_validator("env")
+    @classmethod
+    def _env_fields(cls, env: dict[str, Any]) -> dict[str, Any]:
+        known = [n for n in EnvOptions.field_names() if n != "rewards"]
+        problems = [
+            (k, f"unknown env option; known: {', '.join(known)}") for k in env if k not in known
+        ]
+        raise_problems(problems)
+        try:
+            EnvOptions(**env)
+        except EnvConfigError as err:
+            raise_problems([(err.field.removeprefix("options."), err.reason)])
+        return env
+
+    @field_validator("hyperparams")
+    @classmethod
+    def _hyperparams(cls, hyperparams: dict[str, Any], info: ValidationInfo) -> dict[str, Any]:
+        algorithm = info.data.get("algorithm")
+        if algorithm not in HYPERPARAMETERS:
+            return hyperparams  # the algorithm itself is reported invalid
+        valid = HYPERPARAMETERS[algorithm]
+        problems: list[tuple[str, str]] = []
+        for key, value in hyperparams.items():
+            if key not in valid:
+                problems.append(
+                    (
+                        key,
+                        f"unknown {algorithm} hyperparameter {key!r}; valid: "
+                        f"{', '.join(sorted(valid))}",
+                    )
+                )
+            elif key == "policy_kwargs":
+                problems.extend(_policy_kwargs_problems(value))
+        raise_problems(problems)
+        return hyperparams
+
+    def env_options(self, **overrides: Any) -> EnvOptions:
+        """The env options with the reward constants (``overrides`` replace fields)."""
+        fields = {**self.env, **overrides}
+        return EnvOptions(**fields, rewards=self.reward.config())
+
+    def policy_kwargs(self) -> dict[str, Any]:
+        """``policy_kwargs`` over ``DEFAULT_POLICY_KWARGS`` (activation still a name)."""
+        given = self.hyperparams.get("policy_kwargs") or {}
+        return {**DEFAULT_POLICY_KWARGS, **given}
+
+
+def _policy_kwargs_problems(value: Any) -> list[tuple[str, str]]:
+    where = "policy_kwargs"
+    if not isinstance(value, dict):
+        return [(where, "must be a mapping (e.g. {net_arch: [64, 64]})")]
+    problems = [
+        (f"{where}.{k}", f"unknown key; valid: {', '.join(sorted(POLICY_KWARGS))}")
+        for k in value
+        if k not in POLICY_KWARGS
+    ]
+    arch = value.get("net_arch")
+    if arch is not None and not _valid_arch(arch):
+        problems.append(
+            (f"{where}.net_arch", "must be a list of positive integers or {pi: [...], qf: [...]}")
+        )
+    act = value.get("activation_fn")
+    if act is not None and act not in ACTIVATIONS:
+        problems.append((f"{where}.activation_fn", f"must be one of {', '.join(ACTIVATIONS)}"))
+    return problems
+
+
+def _valid_arch(arch: Any) -> bool:
+    def layers(v: Any) -> bool:
+        return isinstance(v, list) and all(
+            isinstance(n, int) and not isinstance(n, bool) and n > 0 for n in v
+        )
+
+    if isinstance(arch, dict):
+        return bool(arch) and set(arch) <= {"pi", "qf", "vf"} and all(map(layers, arch.values()))
+    return layers(arch)
+
+
+class SubtaskJob(BaseModel):
+    """One training job: train sub-task ``subtask`` of ``plan`` for ``mission``.
+
+    Plain JSON throughout (``model_dump(mode="json")``) so that it can travel through Celery;
+    ``subtask`` is ignored by the whole-lasso reward mode ``g-rrt``.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    mission: dict[str, Any] = Field(description="The mission document (as validated).")
+    plan: dict[str, Any] = Field(description="The plan document of plan_to_dict.")
+    subtask: int = Field(ge=0, description="Index into the plan's sub-tasks.")
+    training: TrainingSpec = Field(description="The training section to use.")
+    seed: int = Field(ge=0, description="Seed of this job (agent and env resets).")
+
+
+def buchi_to_dict(nba: Buchi) -> dict[str, Any]:
+    """A Büchi automaton as JSON with its guards as cubes (exact round trip)."""
+    return {
+        "atoms": list(nba.atoms),
+        "state_names": list(nba.state_names),
+        "initial": nba.initial,
+        "accepting": sorted(nba.accepting),
+        "edges": [
+            {
+                "source": e.source,
+                "target": e.target,
+                "cubes": [[sorted(c.pos), sorted(c.neg)] for c in e.guard.sorted_cubes()],
+            }
+            for e in nba.edges
+        ],
+    }
+
+
+def buchi_from_dict(doc: dict[str, Any]) -> Buchi:
+    """The inverse of ``buchi_to_dict``."""
+    edges = tuple(
+        Edge(
+            int(e["source"]),
+            Guard(frozenset(Cube(frozenset(p), frozenset(n)) for p, n in e["cubes"])),
+            int(e["target"]),
+        )
+        for e in doc["edges"]
+    )
+    return Buchi(
+        atoms=tuple(doc["atoms"]),
+        state_names=tuple(doc["state_names"]),
+        initial=int(doc["initial"]),
+        accepting=frozenset(int(q) for q in doc["accepting"]),
+        edges=edges,
+    )
+
+
+def plan_to_dict(plan: MissionPlan) -> dict[str, Any]:
+    """Everything of a ``MissionPlan`` as JSON: automata, lasso, sub-tasks, radii (exact floats,
+    so a job rebuilt from it trains on the very same guide)."""
+    lasso = plan.lasso
+    return {
+        "formula": plan.formula,
+        "start": plan.start.tolist(),
+        "nba": buchi_to_dict(plan.nba),
+        "pruned": buchi_to_dict(plan.pruned),
+        "lasso": {
+            "prefix": lasso.prefix.tolist(),
+            "suffix": lasso.suffix.tolist(),
+            "prefix_states": list(lasso.prefix_states),
+            "suffix_states": list(lasso.suffix_states),
+            "prefix_cost": lasso.prefix_cost,
+            "suffix_cost": lasso.suffix_cost,
+            "cost": lasso.cost,
+        },
+        "subtasks": [
+            {
+                "index": s.index,
+                "phase": s.phase,
+                "goal": s.goal,
+                "start": s.start.tolist(),
+                "path": s.path.tolist(),
+                "nba_state": s.nba_state,
+                "next_nba_state": s.next_nba_state,
+            }
+            for s in plan.subtasks
+        ],
+        "eta": plan.eta,
+        "r_ball": plan.r_ball,
+        "seconds": plan.seconds,
+        "translation_seconds": plan.translation_seconds,
+    }
+
+
+def plan_from_dict(doc: dict[str, Any]) -> MissionPlan:
+    """The inverse of ``plan_to_dict`` (KeyError/ValueError/TypeError on a malformed one)."""
+    lasso = doc["lasso"]
+    return MissionPlan(
+        formula=str(doc["formula"]),
+        start=np.asarray(doc["start"], dtype=float),
+        nba=buchi_from_dict(doc["nba"]),
+        pruned=buchi_from_dict(doc["pruned"]),
+        lasso=Lasso(
+            prefix=np.asarray(lasso["prefix"], dtype=float),
+            suffix=np.asarray(lasso["suffix"], dtype=float),
+            prefix_states=[int(q) for q in lasso["prefix_states"]],
+            suffix_states=[int(q) for q in lasso["suffix_states"]],
+            prefix_cost=float(lasso["prefix_cost"]),
+            suffix_cost=float(lasso["suffix_cost"]),
+            cost=float(lasso["cost"]),
+        ),
+        subtasks=[
+            SubTask(
+                index=int(s["index"]),
+                phase=s["phase"],
+                goal=str(s["goal"]),
+                start=np.asarray(s["start"], dtype=float),
+                path=np.asarray(s["path"], dtype=float),
+                nba_state=int(s["nba_state"]),
+                next_nba_state=int(s["next_nba_state"]),
+            )
+            for s in doc["subtasks"]
+        ],
+        eta=float(doc["eta"]),
+        r_ball=float(doc["r_ball"]),
+        seconds=float(doc["seconds"]),
+        translation_seconds=float(doc["translation_seconds"]),
+    )
