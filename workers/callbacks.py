@@ -1,0 +1,173 @@
+"""Training callbacks of a sub-task job: evaluation that survives restarts, early stop on the
+success rate, cooperative cancel and throttled progress reports.
+
+Each class does one job, in the style of ``stable_baselines3.common.callbacks``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
+
+ProgressFn = Callable[[int, float | None, int], None]
+"""``on_progress(steps, success_rate, total)``: env steps done (restored ones included), the
+success rate of the latest periodic evaluation (None before the first) and the budget."""
+
+StopFn = Callable[[], bool]
+"""``should_stop()``: True asks the job to stop at the next check (a cancelled job)."""
+
+
+class ResumableEvalCallback(EvalCallback):
+    """``EvalCallback`` whose ``evaluations.npz`` history continues across restarts.
+
+    ``restore(upto)`` reloads the history the previous run wrote (entries after step ``upto``,
+    the checkpoint the run resumes from, are dropped: those steps are redone).
+    """
+
+    def restore(self, upto: int) -> None:
+        """Load the earlier evaluations of ``log_path`` up to step ``upto`` (if any)."""
+        if self.log_path is None:
+            return
+        path = Path(self.log_path)
+        path = path if path.suffix == ".npz" else path.with_name(path.name + ".npz")
+        if not path.is_file():
+            return
+        with np.load(path) as data:
+            steps = data["timesteps"].tolist()
+            keep = [k for k, t in enumerate(steps) if t <= upto]
+            self.evaluations_timesteps = [int(steps[k]) for k in keep]
+            self.evaluations_results = [data["results"][k].tolist() for k in keep]
+            self.evaluations_length = [data["ep_lengths"][k].tolist() for k in keep]
+            if "successes" in data:
+                self.evaluations_successes = [[bool(v) for v in data["successes"][k]] for k in keep]
+
+    @property
+    def success_curve(self) -> list[tuple[int, float]]:
+        """``(steps, success rate)`` of every evaluation so far."""
+        return [
+            (int(t), float(np.mean(s)))
+            for t, s in zip(self.evaluations_timesteps, self.evaluations_successes, strict=False)
+        ]
+
+    @property
+    def last_success_rate(self) -> float | None:
+        """The success rate of the latest evaluation (None before the first)."""
+        return (
+            float(np.mean(self.evaluations_successes[-1])) if self.evaluations_successes else None
+        )
+
+
+class StopOnSuccessRate(BaseCallback):
+    """Stop training once the parent evaluation's success rate reaches ``target``
+    (``callback_after_eval`` of a ``ResumableEvalCallback``)."""
+
+    def __init__(self, target: float) -> None:
+        super().__init__()
+        self.target = target
+        self.reached = False
+
+    def _on_step(self) -> bool:
+        parent = self.parent
+        assert isinstance(parent, ResumableEvalCallback)
+        rate = parent.last_success_rate
+        self.reached = rate is not None and rate >= self.target
+        return not self.reached
+
+
+class StopOnRequest(BaseCallback):
+    """Stop training when ``should_stop()`` says so; asked at most every ``interval`` seconds
+    (it may query a database) and on the first step."""
+
+    def __init__(self, should_stop: StopFn, interval: float = 0.5) -> None:
+        super().__init__()
+        self.should_stop = should_stop
+        self.interval = interval
+        self.stopped = False
+        self._last = -np.inf
+
+    def _on_step(self) -> bool:
+        now = time.monotonic()
+        if now - self._last >= self.interval:
+            self._last = now
+            self.stopped = bool(self.should_stop())
+        return not self.stopped
+
+
+class ReportProgress(BaseCallback):
+    """Call ``on_progress`` at most every ``interval`` seconds and after every evaluation."""
+
+    def __init__(
+        self,
+        on_progress: ProgressFn,
+        total: int,
+        evaluation: ResumableEvalCallback,
+        interval: float = 1.0,
+    ) -> None:
+        super().__init__()
+        self.on_progress = on_progress
+        self.total = total
+        self.evaluation = evaluation
+        self.interval = interval
+        self._last = -np.inf
+        self._evals = 0
+
+    def _on_step(self) -> bool:
+        now = time.monotonic()
+        evals = len(self.evaluation.evaluations_successes)
+        if now - self._last >= self.interval or evals != self._evals:
+            self._last, self._evals = now, evals
+            self.report()
+        return True
+
+    def report(self) -> None:
+        """Report the current state now."""
+        self.on_progress(self.num_timesteps, self.evaluation.last_success_rate, self.total)
+
+
+def checkpoint_steps(path: Path) -> int | None:
+    """The step count in a checkpoint file name ``model_<steps>_steps.zip`` (None otherwise)."""
+    parts = path.stem.split("_")
+    if len(parts) == 3 and parts[0] == "model" and parts[2] == "steps" and parts[1].isdigit():
+        return int(parts[1])
+    return None
+
+
+def latest_checkpoint(folder: Path) -> tuple[Path, Path | None, int] | None:
+    """The newest ``(model, replay buffer or None, steps)`` checkpoint in ``folder``."""
+    found: list[tuple[int, Path]] = []
+    for path in folder.glob("model_*_steps.zip") if folder.is_dir() else ():
+        steps = checkpoint_steps(path)
+        if steps is not None:
+            found.append((steps, path))
+    if not found:
+        return None
+    steps, model = max(found)
+    buffer = folder / f"model_replay_buffer_{steps}_steps.pkl"
+    return model, (buffer if buffer.is_file() else None), steps
+
+
+def prune_checkpoints(folder: Path, keep: int = 2) -> None:
+    """Delete all but the newest ``keep`` checkpoints (replay buffers are large)."""
+    found = sorted(
+        (s, p) for p in folder.glob("model_*_steps.zip") if (s := checkpoint_steps(p)) is not None
+    )
+    for steps, path in found[:-keep]:
+        path.unlink(missing_ok=True)
+        (folder / f"model_replay_buffer_{steps}_steps.pkl").unlink(missing_ok=True)
+
+
+class PruneCheckpoints(BaseCallback):
+    """Keep only the newest checkpoints, checked every ``every`` steps."""
+
+    def __init__(self, folder: Path, every: int, keep: int = 2) -> None:
+        super().__init__()
+        self.folder, self.every, self.keep = folder, every, keep
+
+    def _on_step(self) -> bool:
+        if self.n_calls % self.every == 0:
+            prune_checkpoints(self.folder, self.keep)
+        return True

@@ -1,0 +1,280 @@
+"""Train one sub-task's agent: ``train_subtask(job, out_dir) -> TrainResult``.
+
+A plain function that the Celery task, the CLI pipeline and the tests call the same way. It is
+idempotent: ``out_dir`` holds checkpoints (model and replay buffer), ``evaluations.npz``, the
+logs (CSV, plus TensorBoard when the ``tensorboard`` package is installed) and ``result.json``;
+a restarted job resumes from the newest checkpoint (``num_timesteps`` restored, no step redone
+beyond the checkpoint) and a finished one returns its stored result.
+
+Layout of ``out_dir``: ``checkpoints/model_<steps>_steps.zip`` (+ ``model_replay_buffer_...``),
+``evaluations.npz``, ``logs/run_<steps>/`` (one folder per (re)start), ``model.zip`` (the final
+policy) and ``result.json``.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from stable_baselines3 import DDPG, PPO, SAC, TD3
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback
+from stable_baselines3.common.logger import configure
+from stable_baselines3.common.monitor import Monitor
+from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+from envs.factory import make_env
+from envs.nav_env import NavEnv
+from planner.errors import LtlnavError
+from planner.plan import MissionPlan
+from workers.callbacks import (
+    ProgressFn,
+    PruneCheckpoints,
+    ReportProgress,
+    ResumableEvalCallback,
+    StopFn,
+    StopOnRequest,
+    StopOnSuccessRate,
+    latest_checkpoint,
+    prune_checkpoints,
+)
+from workers.evaluation import evaluate_subtask, evaluation_options
+from workers.mission import MissionSpec, parse_mission
+from workers.training_spec import SubtaskJob, TrainingSpec, plan_from_dict
+
+ALGORITHMS: dict[str, type[BaseAlgorithm]] = {"sac": SAC, "td3": TD3, "ddpg": DDPG, "ppo": PPO}
+"""stable-baselines3 classes by ``training.algorithm`` name."""
+
+ACTIVATION_MODULES: dict[str, type[torch.nn.Module]] = {
+    "relu": torch.nn.ReLU,
+    "tanh": torch.nn.Tanh,
+    "elu": torch.nn.ELU,
+    "leaky_relu": torch.nn.LeakyReLU,
+    "gelu": torch.nn.GELU,
+    "silu": torch.nn.SiLU,
+}
+
+Stopped = Literal["budget", "target", "cancelled"]
+
+
+class TrainingError(LtlnavError):
+    """A training job that cannot run as asked (bad sub-task index, unusable plan)."""
+
+
+@dataclass
+class TrainResult:
+    """What a training job produced."""
+
+    subtask: int
+    model_path: str
+    """The final policy (an SB3 .zip), or the last checkpoint of a cancelled job."""
+    steps: int
+    """Env steps trained in total (restored ones included)."""
+    resumed_from: int
+    """Steps restored from a checkpoint at the start of this call (0: fresh start)."""
+    stopped: Stopped
+    """Why training ended: the budget, the target success rate, or a cancel request."""
+    curve: list[tuple[int, float]] = field(default_factory=list)
+    """``(steps, success rate)`` of every periodic evaluation."""
+    final: dict[str, Any] | None = None
+    """``SubtaskEvaluation.to_json()`` over ``final_eval_episodes`` (None when cancelled)."""
+    seconds: float = 0.0
+    """Wall time of this call."""
+
+    def to_json(self) -> dict[str, Any]:
+        out = asdict(self)
+        out["curve"] = [list(p) for p in self.curve]
+        return out
+
+    @classmethod
+    def from_json(cls, doc: dict[str, Any]) -> TrainResult:
+        doc = dict(doc)
+        doc["curve"] = [(int(s), float(r)) for s, r in doc.get("curve", [])]
+        return cls(**doc)
+
+
+def subtask_env(
+    mission: MissionSpec,
+    plan: MissionPlan,
+    training: TrainingSpec,
+    subtask: int,
+    evaluation: bool = False,
+) -> NavEnv:
+    """The env of ``subtask`` as trained (or, with ``evaluation``, as evaluated: no curriculum);
+    ``g-rrt`` drives the whole lasso whatever ``subtask``."""
+    mode = training.reward.mode
+    options = training.env_options()
+    if evaluation:
+        options = evaluation_options(options)
+    target = None if mode == "g-rrt" else plan.subtasks[subtask]
+    return make_env(mission, target, mode, world=mission.build_world(), plan=plan, options=options)
+
+
+def hyperparameters(training: TrainingSpec, action_dim: int) -> dict[str, Any]:
+    """The SB3 constructor keywords of ``training.hyperparams`` (RL-Zoo names mapped)."""
+    params = {k: v for k, v in training.hyperparams.items() if k not in ("noise_type", "noise_std")}
+    kwargs = training.policy_kwargs()
+    kwargs["activation_fn"] = ACTIVATION_MODULES[kwargs["activation_fn"]]
+    params["policy_kwargs"] = kwargs
+    if isinstance(params.get("train_freq"), list):
+        params["train_freq"] = (int(params["train_freq"][0]), str(params["train_freq"][1]))
+    noise = training.hyperparams.get("noise_type")
+    if noise is not None:
+        std = float(training.hyperparams.get("noise_std", 0.1))
+        cls = NormalActionNoise if noise == "normal" else OrnsteinUhlenbeckActionNoise
+        params["action_noise"] = cls(np.zeros(action_dim), std * np.ones(action_dim))
+    return params
+
+
+def _load_job(job: SubtaskJob) -> tuple[MissionSpec, MissionPlan]:
+    mission = parse_mission(job.mission)
+    try:
+        plan = plan_from_dict(job.plan)
+    except (KeyError, TypeError, ValueError) as err:
+        raise TrainingError(f"the job's plan document is malformed: {err!r}") from err
+    if not 0 <= job.subtask < len(plan.subtasks):
+        raise TrainingError(
+            f"sub-task {job.subtask} does not exist: the plan has {len(plan.subtasks)}"
+        )
+    return mission, plan
+
+
+def train_subtask(
+    spec: SubtaskJob,
+    out_dir: str | Path,
+    on_progress: ProgressFn | None = None,
+    should_stop: StopFn | None = None,
+) -> TrainResult:
+    """Train (or resume training) the agent of ``spec.subtask`` into ``out_dir``.
+
+    ``on_progress(steps, success_rate, total)`` is called about once a second and after every
+    evaluation; ``should_stop()`` is asked about twice a second and a True ends the job after a
+    checkpoint (``stopped="cancelled"``). Stops early when a periodic evaluation reaches
+    ``target_success``. Deterministic for ``spec.seed`` on one machine.
+    """
+    t0 = time.monotonic()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    training = spec.training
+    stored = out / "result.json"
+    if stored.is_file():
+        done = TrainResult.from_json(json.loads(stored.read_text()))
+        if done.stopped == "target" or done.steps >= training.n_timesteps:
+            return done
+    torch.set_num_threads(training.torch_threads)
+    mission, plan = _load_job(spec)
+    env = DummyVecEnv([lambda: Monitor(subtask_env(mission, plan, training, spec.subtask))])
+    eval_env = DummyVecEnv(
+        [lambda: Monitor(subtask_env(mission, plan, training, spec.subtask, evaluation=True))]
+    )
+    env.seed(spec.seed)
+    eval_env.seed(spec.seed + 1)
+    folder = out / "checkpoints"
+    model, resumed = _model(training, env, folder, spec.seed)
+    formats = ["csv"] + (["tensorboard"] if importlib.util.find_spec("tensorboard") else [])
+    model.set_logger(configure(str(out / "logs" / f"run_{resumed}"), formats))
+    evaluation = ResumableEvalCallback(
+        eval_env,
+        n_eval_episodes=training.eval_episodes,
+        eval_freq=training.eval_freq,
+        log_path=str(out),
+        best_model_save_path=None,
+        deterministic=True,
+        warn=False,
+        verbose=0,
+        callback_after_eval=StopOnSuccessRate(training.target_success),
+    )
+    evaluation.restore(resumed)
+    every = training.checkpoint_freq or training.eval_freq
+    callbacks: list[BaseCallback] = [
+        evaluation,
+        CheckpointCallback(every, str(folder), name_prefix="model", save_replay_buffer=True),
+        PruneCheckpoints(folder, every),
+    ]
+    cancel = StopOnRequest(should_stop) if should_stop is not None else None
+    if cancel is not None:
+        callbacks.append(cancel)
+    progress = None
+    if on_progress is not None:
+        progress = ReportProgress(on_progress, training.n_timesteps, evaluation)
+        callbacks.append(progress)
+        on_progress(resumed, evaluation.last_success_rate, training.n_timesteps)
+    remaining = training.n_timesteps - resumed
+    if remaining > 0 and not (cancel is not None and should_stop is not None and should_stop()):
+        model.learn(remaining, callback=CallbackList(callbacks), reset_num_timesteps=False)
+    steps = int(model.num_timesteps)
+    _checkpoint(model, folder, steps)
+    prune_checkpoints(folder)
+    stopper = evaluation.callback
+    assert isinstance(stopper, StopOnSuccessRate)
+    stopped: Stopped = "budget"
+    if cancel is not None and cancel.stopped:
+        stopped = "cancelled"
+    elif stopper.reached:
+        stopped = "target"
+    result = TrainResult(
+        subtask=spec.subtask,
+        model_path=str(folder / f"model_{steps}_steps.zip"),
+        steps=steps,
+        resumed_from=resumed,
+        stopped=stopped,
+        curve=evaluation.success_curve,
+    )
+    if stopped != "cancelled":
+        final = out / "model.zip"
+        model.save(final)
+        test_env = subtask_env(mission, plan, training, spec.subtask, evaluation=True)
+        try:
+            result.final = evaluate_subtask(
+                lambda obs: model.predict(obs, deterministic=True)[0],
+                test_env,
+                training.final_eval_episodes,
+                seed=spec.seed + 2,
+            ).to_json()
+        finally:
+            test_env.close()
+        result.model_path = str(final)
+    env.close()
+    eval_env.close()
+    result.seconds = time.monotonic() - t0
+    if progress is not None:
+        progress.report()
+    if stopped != "cancelled":
+        stored.write_text(json.dumps(result.to_json(), indent=1))
+    return result
+
+
+def _model(
+    training: TrainingSpec, env: DummyVecEnv, folder: Path, seed: int
+) -> tuple[BaseAlgorithm, int]:
+    """A fresh model, or the newest checkpoint in ``folder`` with its replay buffer."""
+    cls = ALGORITHMS[training.algorithm]
+    found = latest_checkpoint(folder)
+    if found is None:
+        shape = env.action_space.shape
+        assert shape is not None
+        params = hyperparameters(training, int(np.prod(shape)))
+        model = cls("MlpPolicy", env, seed=seed, device="cpu", verbose=0, **params)
+        return model, 0
+    path, buffer, steps = found
+    model = cls.load(path, env=env, device="cpu")
+    if buffer is not None and isinstance(model, OffPolicyAlgorithm):
+        model.load_replay_buffer(buffer)
+    model.num_timesteps = steps
+    return model, steps
+
+
+def _checkpoint(model: BaseAlgorithm, folder: Path, steps: int) -> None:
+    """Save model (and replay buffer) as the checkpoint of ``steps``, as CheckpointCallback."""
+    folder.mkdir(parents=True, exist_ok=True)
+    model.save(folder / f"model_{steps}_steps.zip")
+    if isinstance(model, OffPolicyAlgorithm):
+        model.save_replay_buffer(folder / f"model_replay_buffer_{steps}_steps.pkl")
