@@ -1,0 +1,148 @@
+"""The local pipeline behind ``ltlnav train``: plan, train every sub-task in K processes,
+evaluate the whole mission, write ``bundle.zip``.
+
+Re-running it on the same output folder resumes: the plan is reused when the mission is
+unchanged (``plan.json``), each sub-task's job resumes from its checkpoints or returns its
+stored result (``subtask_<k>/``).
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import queue
+import threading
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from planner.errors import PlanningError
+from planner.plan import MissionPlan, plan_mission, verify_plan
+from workers.evaluation import MissionEnv, MissionEvaluation, rollout_mission, stage_policies
+from workers.mission import MissionSpec
+from workers.training import ALGORITHMS, TrainResult, train_subtask
+from workers.training_spec import SubtaskJob, plan_from_dict, plan_to_dict
+
+PipelineProgress = Callable[[int, int, float | None, int], None]
+"""``on_progress(subtask, steps, success_rate, total)``, called in the parent process."""
+
+
+@dataclass
+class PipelineResult:
+    """What ``run_pipeline`` produced."""
+
+    bundle: Path
+    plan: MissionPlan
+    results: list[TrainResult]
+    evaluation: MissionEvaluation
+
+
+def plan_for(mission: MissionSpec, out_dir: Path) -> MissionPlan:
+    """The mission's plan: reused from ``out_dir/plan.json`` when made for the same mission,
+    else planned, verified and stored there."""
+    stored = out_dir / "plan.json"
+    document = mission.model_dump(mode="json")
+    planning = {k: v for k, v in document.items() if k != "training"}
+    if stored.is_file():
+        saved = json.loads(stored.read_text())
+        if saved.get("mission") == planning:
+            return plan_from_dict(saved["plan"])
+    world = mission.build_world()
+    radius = mission.robot.radius
+    plan = plan_mission(world, mission.task, mission.robot.position(), radius, mission.planner)
+    problems = verify_plan(plan, world, radius)
+    if problems:
+        raise PlanningError("the plan failed its own check: " + "; ".join(problems))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    stored.write_text(json.dumps({"mission": planning, "plan": plan_to_dict(plan)}))
+    return plan
+
+
+def _run_job(job: SubtaskJob, out_dir: str, updates: Any) -> TrainResult:
+    """One training job in a worker process; progress goes to the ``updates`` queue."""
+
+    def report(steps: int, rate: float | None, total: int) -> None:
+        updates.put((job.subtask, steps, rate, total))
+
+    return train_subtask(job, out_dir, on_progress=report)
+
+
+def run_pipeline(
+    mission: MissionSpec,
+    out_dir: str | Path,
+    jobs: int | None = None,
+    on_progress: PipelineProgress | None = None,
+) -> PipelineResult:
+    """Plan ``mission``, train its sub-tasks (``jobs`` processes, default the CPU count), roll
+    out the concatenated policy and write ``out_dir/bundle.zip``. The training section
+    (budget, seed, ...) is the mission's own: override it on the spec before calling."""
+    from workers.bundle import write_bundle
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    training = mission.training
+    if training.reward.mode == "g-rrt":
+        raise PlanningError(
+            "reward mode g-rrt trains one agent for the whole lasso; the bundle pipeline "
+            "concatenates one agent per sub-task: use rrt, rrt-paper, ned or tl"
+        )
+    plan = plan_for(mission, out)
+    document, plan_doc = mission.model_dump(mode="json"), plan_to_dict(plan)
+    seeds = [training.seed + k for k in range(len(plan.subtasks))]
+    specs = [
+        SubtaskJob(mission=document, plan=plan_doc, subtask=k, training=training, seed=seeds[k])
+        for k in range(len(plan.subtasks))
+    ]
+    workers = max(1, min(jobs or os.cpu_count() or 1, len(specs)))
+    context = multiprocessing.get_context("fork")
+    with context.Manager() as manager:
+        updates = manager.Queue()
+        done = threading.Event()
+        relay = threading.Thread(target=_relay, args=(updates, done, on_progress), daemon=True)
+        relay.start()
+        try:
+            with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
+                futures = [
+                    pool.submit(_run_job, job, str(out / f"subtask_{job.subtask}"), updates)
+                    for job in specs
+                ]
+                results = [f.result() for f in futures]
+        finally:
+            done.set()
+            relay.join()
+    evaluation = evaluate_results(mission, plan, results)
+    bundle = write_bundle(out / "bundle.zip", mission, plan, results, evaluation, seeds)
+    return PipelineResult(bundle=bundle, plan=plan, results=results, evaluation=evaluation)
+
+
+def _relay(updates: Any, done: threading.Event, on_progress: PipelineProgress | None) -> None:
+    while True:
+        try:
+            item = updates.get(timeout=0.2)
+        except queue.Empty:
+            if done.is_set():
+                return
+            continue
+        except (EOFError, OSError):
+            return
+        if on_progress is not None:
+            on_progress(*item)
+
+
+def evaluate_results(
+    mission: MissionSpec, plan: MissionPlan, results: list[TrainResult]
+) -> MissionEvaluation:
+    """Whole-mission rollouts of the trained models (files this pipeline wrote)."""
+    training = mission.training
+    cls = ALGORITHMS[training.algorithm]
+    models = [cls.load(r.model_path, device="cpu") for r in results]
+    policies = [(lambda obs, m=m: m.predict(obs, deterministic=True)[0]) for m in models]
+    env = MissionEnv(mission, plan, training.env_options(), training.cycles)
+    try:
+        act = stage_policies(env.sequence, policies)
+        return rollout_mission(act, env, training.mission_episodes, seed=training.seed + 7)
+    finally:
+        env.close()
