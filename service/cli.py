@@ -132,6 +132,131 @@ def _print_summary(result: object) -> None:
         typer.echo(f"  sub-task {sub.index} [{sub.phase}] -> {sub.goal}: {length:.2f} long")
 
 
+@app.command("train")
+def train(
+    mission: Annotated[Path, typer.Argument(help="Mission file (YAML or JSON).")],
+    out: Annotated[
+        Path | None, typer.Option("--out", help="Output folder (default runs/<mission name>).")
+    ] = None,
+    seed: Annotated[int | None, typer.Option(help="Override training.seed.")] = None,
+    jobs: Annotated[
+        int | None,
+        typer.Option("--jobs", min=1, help="Parallel training processes (default: cores)."),
+    ] = None,
+    timesteps: Annotated[
+        int | None, typer.Option("--timesteps", min=1, help="Override training.n_timesteps.")
+    ] = None,
+    episodes: Annotated[
+        int | None,
+        typer.Option("--episodes", min=1, help="Override training.mission_episodes."),
+    ] = None,
+) -> None:
+    """Plan a mission, train every sub-task, evaluate the whole mission, write DIR/bundle.zip.
+
+    Re-running on the same folder resumes from the checkpoints."""
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TaskID,
+        TextColumn,
+        TimeRemainingColumn,
+    )
+
+    from workers.mission import load_mission
+    from workers.pipeline import run_pipeline
+
+    try:
+        spec = load_mission(mission)
+    except LtlnavError as error:
+        raise _fail(error) from error
+    update: dict[str, object] = {}
+    if seed is not None:
+        update["seed"] = seed
+    if timesteps is not None:
+        update["n_timesteps"] = timesteps
+    if episodes is not None:
+        update["mission_episodes"] = episodes
+    if update:
+        training = spec.training.model_validate({**spec.training.model_dump(), **update})
+        spec = spec.model_copy(update={"training": training})
+    folder = out if out is not None else Path("runs") / spec.name
+    columns = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("success {task.fields[success]}"),
+        TimeRemainingColumn(),
+    )
+    with Progress(*columns, transient=False) as progress:
+        tasks: dict[int, TaskID] = {}
+
+        def show(subtask: int, steps: int, rate: float | None, total: int) -> None:
+            if subtask not in tasks:
+                tasks[subtask] = progress.add_task(f"sub-task {subtask}", total=total, success="-")
+            shown = "-" if rate is None else f"{100 * rate:.0f} %"
+            progress.update(tasks[subtask], completed=steps, total=total, success=shown)
+
+        try:
+            result = run_pipeline(spec, folder, jobs=jobs, on_progress=show)
+        except LtlnavError as error:
+            raise _fail(error) from error
+    for r in result.results:
+        final = r.final or {}
+        rate = final.get("success_rate")
+        shown = "-" if rate is None else f"{100 * rate:.1f} %"
+        typer.echo(
+            f"  sub-task {r.subtask}: {r.steps} steps ({r.stopped}), success {shown} over "
+            f"{final.get('episodes', 0)} episodes"
+        )
+    ev = result.evaluation
+    typer.echo(
+        f"mission success {100 * ev.success_rate:.1f} % over {ev.episodes} rollouts "
+        f"({ev.cycles} suffix cycles); collisions {100 * ev.collision_rate:.1f} %, "
+        f"timeouts {100 * ev.timeout_rate:.1f} %"
+    )
+    typer.echo(f"bundle written to {result.bundle}")
+
+
+@app.command("rollout")
+def rollout(
+    bundle: Annotated[Path, typer.Argument(help="A bundle.zip written by ltlnav train.")],
+    episodes: Annotated[int, typer.Option("--episodes", min=1, help="Rollouts.")] = 100,
+    cycles: Annotated[
+        int | None, typer.Option("--cycles", min=1, help="Suffix cycles (default: the bundle's).")
+    ] = None,
+    seed: Annotated[int, typer.Option(help="Seed of the rollouts.")] = 0,
+    plot_out: Annotated[Path | None, typer.Option("--plot", help="Write a picture (PNG).")] = None,
+    json_out: Annotated[Path | None, typer.Option("--json", help="Write the results.")] = None,
+) -> None:
+    """Roll out a bundle's concatenated policy on its mission and print the success rate."""
+    from workers.bundle import ConcatenatedPolicy, plot_rollouts
+
+    try:
+        policy = ConcatenatedPolicy.load(bundle)
+    except LtlnavError as error:
+        raise _fail(error) from error
+    try:
+        result = policy.evaluate(episodes, seed=seed, cycles=cycles)
+    finally:
+        policy.close()
+    typer.echo(
+        f"success rate {100 * result.success_rate:.1f} % over {episodes} rollouts "
+        f"({result.cycles} suffix cycles); collisions {100 * result.collision_rate:.1f} %, "
+        f"timeouts {100 * result.timeout_rate:.1f} %"
+    )
+    for where, kinds in sorted(result.failures.items()):
+        typer.echo(f"  failures at sub-task {where}: {kinds}")
+    if json_out is not None:
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(result.to_json(), indent=1))
+        typer.echo(f"results written to {json_out}")
+    if plot_out is not None:
+        plot_out.parent.mkdir(parents=True, exist_ok=True)
+        plot_rollouts(policy.mission.build_world(), policy.plan, result, plot_out)
+        typer.echo(f"picture written to {plot_out}")
+
+
 def main() -> None:
     """Console-script entry point."""
     try:
