@@ -162,15 +162,15 @@ def train_subtask(
     """
     t0 = time.monotonic()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     training = spec.training
     stored = out / "result.json"
     if stored.is_file():
         done = TrainResult.from_json(json.loads(stored.read_text()))
         if done.stopped == "target" or done.steps >= training.n_timesteps:
             return done
-    torch.set_num_threads(training.torch_threads)
     mission, plan = _load_job(spec)
+    out.mkdir(parents=True, exist_ok=True)
+    torch.set_num_threads(training.torch_threads)
     env = DummyVecEnv([lambda: Monitor(subtask_env(mission, plan, training, spec.subtask))])
     eval_env = DummyVecEnv(
         [lambda: Monitor(subtask_env(mission, plan, training, spec.subtask, evaluation=True))]
@@ -208,15 +208,17 @@ def train_subtask(
         callbacks.append(progress)
         on_progress(resumed, evaluation.last_success_rate, training.n_timesteps)
     remaining = training.n_timesteps - resumed
-    if remaining > 0 and not (cancel is not None and should_stop is not None and should_stop()):
+    cancelled = should_stop is not None and should_stop()
+    if remaining > 0 and not cancelled:
         model.learn(remaining, callback=CallbackList(callbacks), reset_num_timesteps=False)
+        cancelled = cancel is not None and cancel.stopped
     steps = int(model.num_timesteps)
     _checkpoint(model, folder, steps)
     prune_checkpoints(folder)
     stopper = evaluation.callback
     assert isinstance(stopper, StopOnSuccessRate)
     stopped: Stopped = "budget"
-    if cancel is not None and cancel.stopped:
+    if cancelled:
         stopped = "cancelled"
     elif stopper.reached:
         stopped = "target"

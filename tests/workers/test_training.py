@@ -1,0 +1,200 @@
+"""Training one sub-task for real with tiny budgets: checkpoints, resume, cancel, progress, the
+training section's validation and the plan document that jobs carry."""
+
+from __future__ import annotations
+
+import copy
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from stable_baselines3 import SAC
+
+from planner.plan import MissionPlan, plan_mission
+from workers.callbacks import ResumableEvalCallback, StopOnSuccessRate
+from workers.mission import MissionError, MissionSpec, parse_mission
+from workers.training import TrainingError, subtask_env, train_subtask
+from workers.training_spec import SubtaskJob, TrainingSpec, plan_from_dict, plan_to_dict
+
+TINY: dict[str, Any] = {
+    "name": "tiny-gf2",
+    "task": "[]!obstacle && []<>a && []<>b",
+    "robot": {"model": "point", "start": [0.5, 0.5], "radius": 0.05},
+    "planner": {"seed": 1, "refine_seconds": 0.1},
+    "world": {
+        "bounds": [[0, 4], [0, 4]],
+        "obstacles": [{"box": {"min": [1.8, 0.0], "max": [2.2, 2.5]}}],
+        "regions": {
+            "a": {"ball": {"center": [3.4, 0.6], "radius": 0.3}},
+            "b": {"box": {"min": [0.2, 3.2], "max": [0.8, 3.8]}},
+        },
+    },
+    "training": {
+        "n_timesteps": 200,
+        "eval_freq": 100,
+        "eval_episodes": 1,
+        "final_eval_episodes": 2,
+        "mission_episodes": 2,
+        "hyperparams": {
+            "policy_kwargs": {"net_arch": [8]},
+            "learning_starts": 50,
+            "batch_size": 16,
+            "buffer_size": 5000,
+        },
+    },
+}
+"""A 4 x 4 m world, a point robot and GF a & GF b: four short sub-tasks, net_arch [8]."""
+
+
+def tiny_mission(**training: Any) -> MissionSpec:
+    data = copy.deepcopy(TINY)
+    data["training"].update(training)
+    return parse_mission(data)
+
+
+@pytest.fixture(scope="module")
+def mission() -> MissionSpec:
+    return tiny_mission()
+
+
+@pytest.fixture(scope="module")
+def plan(mission: MissionSpec) -> MissionPlan:
+    world = mission.build_world()
+    return plan_mission(
+        world, mission.task, mission.robot.position(), mission.robot.radius, mission.planner
+    )
+
+
+def job(mission: MissionSpec, plan: MissionPlan, subtask: int = 0, **training: Any) -> SubtaskJob:
+    spec = mission.training.model_copy(update=training)
+    return SubtaskJob(
+        mission=mission.model_dump(mode="json"),
+        plan=plan_to_dict(plan),
+        subtask=subtask,
+        training=spec,
+        seed=3,
+    )
+
+
+def test_plan_document_round_trips_exactly(plan: MissionPlan) -> None:
+    doc = plan_to_dict(plan)
+    again = plan_from_dict(json.loads(json.dumps(doc)))
+    assert plan_to_dict(again) == doc
+    assert again.nba.accepting == plan.nba.accepting and again.pruned.edges == plan.pruned.edges
+    for a, b in zip(again.subtasks, plan.subtasks, strict=True):
+        assert np.array_equal(a.path, b.path) and a.goal == b.goal
+
+
+def test_job_is_json(mission: MissionSpec, plan: MissionPlan) -> None:
+    spec = job(mission, plan)
+    assert SubtaskJob.model_validate_json(spec.model_dump_json()) == spec
+
+
+def test_unknown_hyperparameter_names_the_key_and_the_valid_ones() -> None:
+    with pytest.raises(MissionError) as caught:
+        tiny_mission(hyperparams={"learnin_rate": 0.001})
+    message = str(caught.value)
+    assert "training.hyperparams.learnin_rate" in message and "learning_rate" in message
+    with pytest.raises(MissionError, match=r"training\.hyperparams\.buffer_size: unknown ppo"):
+        tiny_mission(algorithm="ppo", hyperparams={"buffer_size": 10})
+    with pytest.raises(MissionError, match=r"policy_kwargs\.net_arc"):
+        tiny_mission(hyperparams={"policy_kwargs": {"net_arc": [8]}})
+    with pytest.raises(MissionError, match=r"training\.env\.lookahed"):
+        tiny_mission(env={"lookahed": 2})
+    with pytest.raises(MissionError, match=r"training\.reward\.constants\.step_cost"):
+        tiny_mission(reward={"mode": "ned", "constants": {"step_cost": 0.1}})
+
+
+def test_defaults_are_the_papers_network() -> None:
+    spec = TrainingSpec()
+    assert spec.algorithm == "sac" and spec.target_success == 0.95
+    assert spec.final_eval_episodes == 200 and spec.torch_threads == 1
+    assert spec.policy_kwargs() == {"net_arch": [64, 64, 64], "activation_fn": "relu"}
+
+
+def test_train_checkpoint_then_resume_with_a_bigger_budget(
+    mission: MissionSpec, plan: MissionPlan, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    scratch = tmp_path / "tmpdir"
+    scratch.mkdir()
+    monkeypatch.setenv("TMPDIR", str(scratch))
+    out = tmp_path / "job"
+    seen: list[tuple[int, float | None, int]] = []
+    first = train_subtask(job(mission, plan), out, on_progress=lambda *a: seen.append(a))
+    assert (first.steps, first.resumed_from, first.stopped) == (200, 0, "budget")
+    assert [s for s, _ in first.curve] == [100, 200]
+    assert first.final is not None and first.final["episodes"] == 2
+    rates = first.final
+    assert rates["success_rate"] + rates["collision_rate"] + rates["timeout_rate"] == 1.0
+    assert seen[0][0] == 0 and seen[-1][0] == 200 and all(t == 200 for *_, t in seen)
+    assert [a[0] for a in seen] == sorted(a[0] for a in seen)
+    assert (out / "checkpoints" / "model_200_steps.zip").is_file()
+    assert (out / "checkpoints" / "model_replay_buffer_200_steps.pkl").is_file()
+    assert (out / "logs" / "run_0" / "progress.csv").is_file()
+    assert list(scratch.iterdir()) == []  # nothing written to $TMPDIR
+    model = SAC.load(first.model_path, device="cpu")
+    assert model.num_timesteps == 200
+
+    second = train_subtask(job(mission, plan, n_timesteps=350), out)
+    assert (second.resumed_from, second.steps) == (200, 350)
+    with np.load(out / "evaluations.npz") as data:
+        assert data["timesteps"].tolist() == [100, 200, 300]
+    assert [s for s, _ in second.curve] == [100, 200, 300]
+    assert (out / "logs" / "run_200" / "progress.csv").is_file()
+    again = train_subtask(job(mission, plan, n_timesteps=350), out)
+    assert again == second  # a finished job returns its stored result
+
+
+def test_cancel_stops_after_a_checkpoint_and_resumes(
+    mission: MissionSpec, plan: MissionPlan, tmp_path: Path
+) -> None:
+    out = tmp_path / "job"
+    asked: list[bool] = []
+
+    def should_stop() -> bool:  # no before training starts, yes at the first step
+        asked.append(True)
+        return len(asked) > 1
+
+    stopped = train_subtask(job(mission, plan, subtask=1), out, should_stop=should_stop)
+    assert stopped.stopped == "cancelled" and stopped.steps == 1 and stopped.final is None
+    assert Path(stopped.model_path).is_file() and not (out / "result.json").exists()
+    resumed = train_subtask(job(mission, plan, subtask=1, n_timesteps=120), out)
+    assert (resumed.resumed_from, resumed.steps, resumed.stopped) == (1, 120, "budget")
+
+
+def test_same_seed_same_policy(mission: MissionSpec, plan: MissionPlan, tmp_path: Path) -> None:
+    spec = job(mission, plan, subtask=2, n_timesteps=80, eval_freq=80, final_eval_episodes=1)
+    a = SAC.load(train_subtask(spec, tmp_path / "a").model_path, device="cpu")
+    b = SAC.load(train_subtask(spec, tmp_path / "b").model_path, device="cpu")
+    env = subtask_env(mission, plan, spec.training, 2, evaluation=True)
+    obs, _ = env.reset(seed=0)
+    env.close()
+    for key, value in a.policy.state_dict().items():
+        assert np.array_equal(value.numpy(), b.policy.state_dict()[key].numpy()), key
+    assert np.array_equal(
+        a.predict(obs, deterministic=True)[0], b.predict(obs, deterministic=True)[0]
+    )
+
+
+def test_bad_subtask_index_is_a_training_error(
+    mission: MissionSpec, plan: MissionPlan, tmp_path: Path
+) -> None:
+    with pytest.raises(TrainingError, match="does not exist"):
+        train_subtask(job(mission, plan, subtask=99), tmp_path / "job")
+    assert not (tmp_path / "job").exists()
+
+
+def test_stop_on_success_rate_reads_the_last_evaluation(
+    mission: MissionSpec, plan: MissionPlan
+) -> None:
+    env = subtask_env(mission, plan, mission.training, 0, evaluation=True)
+    stopper = StopOnSuccessRate(0.6)
+    evaluation = ResumableEvalCallback(env, callback_after_eval=stopper, verbose=0)
+    evaluation.evaluations_successes = [[True, False, False]]
+    assert stopper._on_step() and not stopper.reached
+    evaluation.evaluations_successes.append([True, True, False])
+    assert not stopper._on_step() and stopper.reached
+    assert evaluation.last_success_rate == pytest.approx(2 / 3)
+    env.close()
