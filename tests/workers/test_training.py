@@ -22,10 +22,10 @@ TINY: dict[str, Any] = {
     "name": "tiny-gf2",
     "task": "[]!obstacle && []<>a && []<>b",
     "robot": {"model": "point", "start": [0.5, 0.5], "radius": 0.05},
-    "planner": {"seed": 1, "refine_seconds": 0.1},
+    "planner": {"seed": 1, "refine_iterations": 300},
     "world": {
         "bounds": [[0, 4], [0, 4]],
-        "obstacles": [{"box": {"min": [1.8, 0.0], "max": [2.2, 2.5]}}],
+        "obstacles": [{"box": {"min": [2.6, 2.6], "max": [3.4, 3.4]}}],
         "regions": {
             "a": {"ball": {"center": [3.4, 0.6], "radius": 0.3}},
             "b": {"box": {"min": [0.2, 3.2], "max": [0.8, 3.8]}},

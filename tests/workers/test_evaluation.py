@@ -1,0 +1,118 @@
+"""Sub-task evaluation and whole-mission rollouts judged by the Büchi automaton, driven by a
+scripted guide follower (succeeds), a parked robot (times out) and a crasher (collides)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+
+from envs.nav_env import NavEnv
+from planner.plan import MissionPlan, plan_mission
+from workers.evaluation import (
+    MissionEnv,
+    evaluate_subtask,
+    rollout_mission,
+    stage_policies,
+    stage_sequence,
+)
+from workers.mission import MissionSpec
+
+from .test_training import tiny_mission
+
+
+@pytest.fixture(scope="module")
+def mission() -> MissionSpec:
+    return tiny_mission()
+
+
+@pytest.fixture(scope="module")
+def plan(mission: MissionSpec) -> MissionPlan:
+    world = mission.build_world()
+    return plan_mission(
+        world, mission.task, mission.robot.position(), mission.robot.radius, mission.planner
+    )
+
+
+def follower(env: Callable[[], NavEnv]) -> Callable[[np.ndarray], np.ndarray]:
+    """A PD controller of the point robot toward the r-ball two ahead of its progress, then
+    the centre of the goal region (the guide ends on its boundary)."""
+
+    def act(_obs: np.ndarray) -> np.ndarray:
+        sub = env()
+        centers = sub.legs[0].guide.centers
+        target = centers[min(sub.progress_index + 2, len(centers) - 1)]
+        if sub.progress_index >= len(centers) - 2:
+            goal = sub.world.regions[sub.legs[0].subtask.goal]
+            target = np.mean(goal.bounding_box(), axis=0)
+        state = np.asarray(sub.robot.state)
+        d = len(target)
+        return np.clip(2.0 * (target - state[:d]) - 2.0 * state[d:], -1, 1).astype(np.float32)
+
+    return act
+
+
+def test_subtask_evaluation_counts_successes_collisions_and_timeouts(
+    mission: MissionSpec, plan: MissionPlan
+) -> None:
+    from workers.training import subtask_env
+
+    env = subtask_env(mission, plan, mission.training, 0, evaluation=True)
+    good = evaluate_subtask(follower(lambda: env), env, episodes=3, seed=0)
+    assert good.success_rate == 1.0 and good.collision_rate == 0.0
+    assert good.mean_steps_to_goal is not None and 5 < good.mean_steps_to_goal < env.max_steps
+    parked = evaluate_subtask(lambda o: np.zeros(2, dtype=np.float32), env, episodes=2, seed=0)
+    assert (parked.success_rate, parked.timeout_rate, parked.mean_steps_to_goal) == (0, 1, None)
+    # the robot starts 0.5 m from the left wall of the world: push straight into it
+    crash = evaluate_subtask(lambda o: np.array([-1, 0], dtype=np.float32), env, episodes=2, seed=0)
+    assert crash.collision_rate == 1.0 and crash.success_rate == 0.0
+    env.close()
+
+
+def test_mission_rollout_of_a_good_policy_is_accepted(
+    mission: MissionSpec, plan: MissionPlan
+) -> None:
+    env = MissionEnv(mission, plan, mission.training.env_options(), cycles=2)
+    assert env.sequence == stage_sequence(plan, 2)
+    assert len(env.sequence) == 2 + 2 * 2  # prefix a, b; suffix (a, b) twice
+    act = follower(lambda: env.envs[env.sequence[env.stage]])
+    result = rollout_mission(act, env, episodes=2, seed=0)
+    assert result.success_rate == 1.0 and result.failures == {}
+    assert result.mean_steps is not None and len(result.trails) == 2
+    assert {"a", "b"} <= set().union(*env.trace)
+    assert len(env.cycle_starts) == 2 and env.accepted()
+    # the same positions without ever visiting b: the automaton rejects the trace
+    env.trace = [lab for lab in env.trace if "b" not in lab]
+    assert not env.accepted()
+    env.close()
+
+
+def test_mission_failures_are_located_by_subtask_and_kind(
+    mission: MissionSpec, plan: MissionPlan
+) -> None:
+    env = MissionEnv(mission, plan, mission.training.env_options(), cycles=1)
+    parked = rollout_mission(lambda o: np.zeros(2, dtype=np.float32), env, episodes=2)
+    assert parked.timeout_rate == 1.0 and parked.failures == {"0": {"timeout": 2}}
+    assert parked.to_json()["failures"] == {"0": {"timeout": 2}}
+    assert "trails" not in parked.to_json()
+    crash = rollout_mission(lambda o: np.array([-1, 0], dtype=np.float32), env, episodes=1)
+    assert crash.collision_rate == 1.0 and crash.failures == {"0": {"collision": 1}}
+    env.close()
+
+
+def test_stage_policies_pick_the_stage_sub_policy() -> None:
+    calls: list[int] = []
+
+    def policy(k: int) -> Callable[[np.ndarray], np.ndarray]:
+        def act(obs: np.ndarray) -> np.ndarray:
+            calls.append(k)
+            assert obs.shape == (3,)
+            return np.zeros(2)
+
+        return act
+
+    act = stage_policies([0, 1, 2, 3, 2, 3], [policy(k) for k in range(4)])
+    for stage in range(6):
+        act(np.array([0.0, 0.0, 0.0, float(stage)]))
+    assert calls == [0, 1, 2, 3, 2, 3]
