@@ -1,0 +1,221 @@
+"""The bundle: written from real (tiny) training runs, read back without unpickling, its
+concatenated policy equal to the trained models, and every kind of bad zip refused."""
+
+from __future__ import annotations
+
+import io
+import json
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from stable_baselines3 import SAC
+
+from planner.errors import LtlnavError
+from planner.plan import MissionPlan, plan_mission
+from workers.bundle import BundleError, ConcatenatedPolicy, read_bundle, write_bundle
+from workers.evaluation import MissionEnv, rollout_mission, stage_policies
+from workers.mission import MissionSpec
+from workers.training import TrainResult, train_subtask
+from workers.training_spec import SubtaskJob, plan_to_dict
+
+from .test_training import tiny_mission
+
+
+@pytest.fixture(scope="module")
+def trained(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> tuple[MissionSpec, MissionPlan, list[TrainResult], Path]:
+    mission = tiny_mission(n_timesteps=60, eval_freq=60, final_eval_episodes=1)
+    plan = plan_mission(
+        mission.build_world(),
+        mission.task,
+        mission.robot.position(),
+        mission.robot.radius,
+        mission.planner,
+    )
+    root = tmp_path_factory.mktemp("bundle")
+    results = [
+        train_subtask(
+            SubtaskJob(
+                mission=mission.model_dump(mode="json"),
+                plan=plan_to_dict(plan),
+                subtask=k,
+                training=mission.training,
+                seed=k,
+            ),
+            root / f"subtask_{k}",
+        )
+        for k in range(len(plan.subtasks))
+    ]
+    models = [SAC.load(r.model_path, device="cpu") for r in results]
+    env = MissionEnv(mission, plan, mission.training.env_options(), cycles=1)
+    act = stage_policies(
+        env.sequence, [lambda o, m=m: m.predict(o, deterministic=True)[0] for m in models]
+    )
+    evaluation = rollout_mission(act, env, episodes=1)
+    env.close()
+    seeds = list(range(len(plan.subtasks)))
+    bundle = write_bundle(root / "bundle.zip", mission, plan, results, evaluation, seeds)
+    return mission, plan, results, bundle
+
+
+def test_bundle_members_and_manifest(
+    trained: tuple[MissionSpec, MissionPlan, list[TrainResult], Path],
+) -> None:
+    mission, plan, results, bundle = trained
+    with zipfile.ZipFile(bundle) as archive:
+        names = set(archive.namelist())
+        manifest = json.loads(archive.read("manifest.json"))
+        card = archive.read("README.md").decode()
+        assert archive.read("plan.png")[:4] == b"\x89PNG"
+    expected = {f"models/subtask_{k}.zip" for k in range(len(plan.subtasks))}
+    assert expected | {"manifest.json", "README.md", "plan.png", "learning_curves.png"} <= names
+    assert "rollout.png" in names
+    assert manifest["format"] == "ltlnav-bundle" and manifest["format_version"] == 1
+    assert manifest["mission"]["task"] == mission.task
+    assert manifest["automaton_hoa"].startswith("HOA: v1")
+    assert manifest["seeds"]["subtasks"] == [0, 1, 2, 3]
+    assert "stable-baselines3" in manifest["packages"] and "torch" in manifest["packages"]
+    assert manifest["lasso"]["prefix"][0] == [0.5, 0.5]
+    assert [s["goal"] for s in manifest["subtasks"]] == [s.goal for s in plan.subtasks]
+    for entry, result in zip(manifest["subtasks"], results, strict=True):
+        assert entry["steps"] == result.steps == 60
+        assert entry["evaluation"]["episodes"] == 1 and len(entry["guide_centers"]) >= 2
+        assert entry["policy_kwargs"]["net_arch"] == [8]
+    assert manifest["mission_evaluation"]["episodes"] == 1
+    assert "tiny-gf2" in card and "| 3 | suffix |" in card
+
+
+def test_models_load_with_plain_sac(
+    trained: tuple[MissionSpec, MissionPlan, list[TrainResult], Path], tmp_path: Path
+) -> None:
+    *_, bundle = trained
+    with zipfile.ZipFile(bundle) as archive:
+        archive.extract("models/subtask_2.zip", tmp_path)
+    model = SAC.load(tmp_path / "models" / "subtask_2.zip", device="cpu")
+    assert model.num_timesteps == 60
+
+
+def test_concatenated_policy_acts_like_the_trained_models(
+    trained: tuple[MissionSpec, MissionPlan, list[TrainResult], Path],
+) -> None:
+    _, _, results, bundle = trained
+    policy = ConcatenatedPolicy.load(bundle)
+    models = [SAC.load(r.model_path, device="cpu") for r in results]
+    env = policy.make_env()
+    obs, _ = env.reset(seed=0)
+    policy.reset(obs)
+    rng = np.random.default_rng(0)
+    low, high = env.observation_space.low, env.observation_space.high
+    for stage in range(len(env.sequence) + 3):  # beyond the rollout: the suffix cycles on
+        probe = obs.copy()
+        probe[:-1] = rng.uniform(np.maximum(low[:-1], -1), np.minimum(high[:-1], 1))
+        probe[-1] = stage
+        k = policy.subtask_of(stage)
+        assert k == env.sequence[min(stage, len(env.sequence) - 1)] or stage >= len(env.sequence)
+        expected = models[k].predict(probe[:-1], deterministic=True)[0]
+        assert np.allclose(policy.act(probe), expected, atol=1e-6)
+    assert [policy.subtask_of(s) for s in range(2, 8)] == [2, 3, 2, 3, 2, 3]
+    result = policy.evaluate(episodes=1, cycles=1)
+    assert result.episodes == 1 and result.cycles == 1
+    assert result.success_rate + result.collision_rate + result.timeout_rate + (
+        result.rejected_rate
+    ) == pytest.approx(1.0)
+    env.close()
+    policy.close()
+
+
+def rewrite(bundle: Path, out: Path, change: dict[str, bytes | None]) -> Path:
+    """A copy of ``bundle`` with members replaced (bytes), dropped (None) or added."""
+    with zipfile.ZipFile(bundle) as src, zipfile.ZipFile(out, "w") as dst:
+        for name in src.namelist():
+            if name not in change:
+                dst.writestr(name, src.read(name))
+        for name, data in change.items():
+            if data is not None:
+                dst.writestr(name, data)
+    return out
+
+
+def manifest_with(bundle: Path, **fields: object) -> bytes:
+    with zipfile.ZipFile(bundle) as archive:
+        manifest = json.loads(archive.read("manifest.json"))
+    manifest.update(fields)
+    return json.dumps(manifest).encode()
+
+
+def test_bad_bundles_are_refused_before_any_model_is_loaded(
+    trained: tuple[MissionSpec, MissionPlan, list[TrainResult], Path], tmp_path: Path
+) -> None:
+    *_, bundle = trained
+    assert issubclass(BundleError, LtlnavError)
+    truncated = tmp_path / "truncated.zip"
+    truncated.write_bytes(bundle.read_bytes()[: bundle.stat().st_size // 2])
+    text = tmp_path / "notes.zip"
+    text.write_text("hello")
+    foreign = tmp_path / "foreign.zip"
+    with zipfile.ZipFile(foreign, "w") as archive:
+        archive.writestr("data.csv", "a,b\n1,2\n")
+    cases: list[tuple[Path, str]] = [
+        (truncated, "not a zip file or corrupted"),
+        (text, "not a zip file or corrupted"),
+        (foreign, "not an ltlnav bundle"),
+        (tmp_path / "missing.zip", "no such bundle"),
+        (rewrite(bundle, tmp_path / "a.zip", {"../evil.txt": b"x"}), "path traversal"),
+        (rewrite(bundle, tmp_path / "b.zip", {"manifest.json": b"{"}), "not valid JSON"),
+        (
+            rewrite(
+                bundle, tmp_path / "c.zip", {"manifest.json": manifest_with(bundle, format="x")}
+            ),
+            "not an ltlnav bundle",
+        ),
+        (
+            rewrite(
+                bundle,
+                tmp_path / "d.zip",
+                {"manifest.json": manifest_with(bundle, format_version=9)},
+            ),
+            "version 9 is not supported",
+        ),
+        (
+            rewrite(bundle, tmp_path / "e.zip", {"manifest.json": manifest_with(bundle, extra=1)}),
+            "invalid manifest.json",
+        ),
+        (rewrite(bundle, tmp_path / "f.zip", {"models/subtask_1.zip": None}), "subtask_1.zip"),
+        (rewrite(bundle, tmp_path / "g.zip", {"README.md": None}), "missing"),
+    ]
+    for path, message in cases:
+        with pytest.raises(BundleError, match=message):
+            ConcatenatedPolicy.load(path)
+
+
+def test_a_model_archive_with_foreign_members_or_wrong_weights_is_refused(
+    trained: tuple[MissionSpec, MissionPlan, list[TrainResult], Path], tmp_path: Path
+) -> None:
+    *_, bundle = trained
+    with zipfile.ZipFile(bundle) as archive:
+        model = archive.read("models/subtask_0.zip")
+        manifest = json.loads(archive.read("manifest.json"))
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(io.BytesIO(model)) as src, zipfile.ZipFile(buffer, "w") as dst:
+        for name in src.namelist():
+            dst.writestr(name, src.read(name))
+        dst.writestr("payload.pkl", b"cos\nsystem\n(S'true'\ntR.")
+    evil = rewrite(bundle, tmp_path / "evil.zip", {"models/subtask_0.zip": buffer.getvalue()})
+    with pytest.raises(BundleError, match="unexpected members"):
+        read_bundle(evil)
+    manifest["subtasks"][0]["policy_kwargs"]["net_arch"] = [16, 16]
+    wrong = rewrite(
+        bundle, tmp_path / "wrong.zip", {"manifest.json": json.dumps(manifest).encode()}
+    )
+    with pytest.raises(BundleError, match="do not fit"):
+        ConcatenatedPolicy.load(wrong)
+    manifest["subtasks"][0]["policy_kwargs"]["net_arch"] = [8]
+    manifest["subtasks"][0]["model"] = "../models/subtask_0.zip"
+    escape = rewrite(
+        bundle, tmp_path / "escape.zip", {"manifest.json": json.dumps(manifest).encode()}
+    )
+    with pytest.raises(BundleError, match="missing or misnamed"):
+        read_bundle(escape)
