@@ -1,0 +1,70 @@
+"""``ltlnav train`` and ``ltlnav rollout`` end to end on a tiny mission (real training)."""
+
+from __future__ import annotations
+
+import copy
+import json
+import zipfile
+from pathlib import Path
+
+import yaml
+from typer.testing import CliRunner
+
+from service.cli import EXIT_BAD_INPUT, app
+from tests.workers.test_training import TINY
+
+runner = CliRunner()
+
+
+def test_train_then_rollout(tmp_path: Path) -> None:
+    mission = tmp_path / "mission.yaml"
+    mission.write_text(yaml.safe_dump(copy.deepcopy(TINY)))
+    out = tmp_path / "run"
+    args = ["train", str(mission), "--out", str(out), "--jobs", "2", "--timesteps", "100"]
+    result = runner.invoke(app, [*args, "--seed", "4", "--episodes", "2"])
+    assert result.exit_code == 0, result.output
+    assert "mission success" in result.output and "bundle written" in result.output
+    for k in range(4):
+        assert f"sub-task {k}: 100 steps (budget)" in result.output
+    bundle = out / "bundle.zip"
+    with zipfile.ZipFile(bundle) as archive:
+        manifest = json.loads(archive.read("manifest.json"))
+    assert manifest["seeds"]["training"] == 4 and manifest["seeds"]["subtasks"] == [4, 5, 6, 7]
+    assert manifest["mission_evaluation"]["episodes"] == 2
+
+    report, picture = tmp_path / "rollout.json", tmp_path / "rollout.png"
+    result = runner.invoke(
+        app,
+        ["rollout", str(bundle), "--episodes", "2", "--json", str(report), "--plot", str(picture)],
+    )
+    assert result.exit_code == 0, result.output
+    assert "success rate" in result.output
+    data = json.loads(report.read_text())
+    assert data["episodes"] == 2 and 0 <= data["success_rate"] <= 1
+    assert {"collision_rate", "failures", "timeout_rate"} <= set(data)
+    assert sum(sum(kinds.values()) for kinds in data["failures"].values()) == round(
+        2 * (1 - data["success_rate"])
+    )
+    assert picture.read_bytes()[:4] == b"\x89PNG"
+
+    again = runner.invoke(app, [*args, "--seed", "4", "--episodes", "2"])
+    assert again.exit_code == 0, again.output  # resumes: every job returns its stored result
+
+
+def test_rollout_refuses_a_foreign_zip(tmp_path: Path) -> None:
+    foreign = tmp_path / "other.zip"
+    with zipfile.ZipFile(foreign, "w") as archive:
+        archive.writestr("hello.txt", "hi")
+    result = runner.invoke(app, ["rollout", str(foreign), "--episodes", "1"])
+    assert result.exit_code == EXIT_BAD_INPUT
+    assert "not an ltlnav bundle" in result.output
+
+
+def test_train_reports_an_unknown_hyperparameter(tmp_path: Path) -> None:
+    data = copy.deepcopy(TINY)
+    data["training"]["hyperparams"]["gama"] = 0.9
+    mission = tmp_path / "mission.yaml"
+    mission.write_text(yaml.safe_dump(data))
+    result = runner.invoke(app, ["train", str(mission), "--out", str(tmp_path / "run")])
+    assert result.exit_code == EXIT_BAD_INPUT
+    assert "training.hyperparams.gama" in result.output and "gamma" in result.output
