@@ -210,11 +210,7 @@ def train(
             f"{final.get('episodes', 0)} episodes"
         )
     ev = result.evaluation
-    typer.echo(
-        f"mission success {100 * ev.success_rate:.1f} % over {ev.episodes} rollouts "
-        f"({ev.cycles} suffix cycles); collisions {100 * ev.collision_rate:.1f} %, "
-        f"timeouts {100 * ev.timeout_rate:.1f} %"
-    )
+    typer.echo(f"mission {_rollout_summary(ev)}")
     typer.echo(f"bundle written to {result.bundle}")
 
 
@@ -240,11 +236,7 @@ def rollout(
         result = policy.evaluate(episodes, seed=seed, cycles=cycles)
     finally:
         policy.close()
-    typer.echo(
-        f"success rate {100 * result.success_rate:.1f} % over {episodes} rollouts "
-        f"({result.cycles} suffix cycles); collisions {100 * result.collision_rate:.1f} %, "
-        f"timeouts {100 * result.timeout_rate:.1f} %"
-    )
+    typer.echo(_rollout_summary(result))
     for where, kinds in sorted(result.failures.items()):
         typer.echo(f"  failures at sub-task {where}: {kinds}")
     if json_out is not None:
@@ -255,6 +247,19 @@ def rollout(
         plot_out.parent.mkdir(parents=True, exist_ok=True)
         plot_rollouts(policy.mission.build_world(), policy.plan, result, plot_out)
         typer.echo(f"picture written to {plot_out}")
+
+
+def _rollout_summary(result: object) -> str:
+    from workers.evaluation import MissionEvaluation
+
+    assert isinstance(result, MissionEvaluation)
+    cycles = f", {result.cycles} suffix cycles" if result.cycles else ""
+    return (
+        f"success rate {100 * result.success_rate:.1f} % over {result.episodes} rollouts"
+        f"{cycles}; collisions {100 * result.collision_rate:.1f} %, timeouts "
+        f"{100 * result.timeout_rate:.1f} %, automaton rejections "
+        f"{100 * result.rejected_rate:.1f} %"
+    )
 
 
 def main() -> None:

@@ -136,18 +136,18 @@ def checkpoint_steps(path: Path) -> int | None:
     return None
 
 
-def latest_checkpoint(folder: Path) -> tuple[Path, Path | None, int] | None:
-    """The newest ``(model, replay buffer or None, steps)`` checkpoint in ``folder``."""
+def checkpoints(folder: Path) -> list[tuple[Path, Path | None, int]]:
+    """Every ``(model, replay buffer or None, steps)`` checkpoint in ``folder``, newest first."""
     found: list[tuple[int, Path]] = []
     for path in folder.glob("model_*_steps.zip") if folder.is_dir() else ():
         steps = checkpoint_steps(path)
         if steps is not None:
             found.append((steps, path))
-    if not found:
-        return None
-    steps, model = max(found)
-    buffer = folder / f"model_replay_buffer_{steps}_steps.pkl"
-    return model, (buffer if buffer.is_file() else None), steps
+    out: list[tuple[Path, Path | None, int]] = []
+    for steps, model in sorted(found, reverse=True):
+        buffer = folder / f"model_replay_buffer_{steps}_steps.pkl"
+        out.append((model, buffer if buffer.is_file() else None, steps))
+    return out
 
 
 def prune_checkpoints(folder: Path, keep: int = 2) -> None:

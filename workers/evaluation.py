@@ -115,7 +115,10 @@ class MissionEnv(gym.Env[np.ndarray, np.ndarray]):
         cycles: int = 3,
         world: World | None = None,
     ) -> None:
-        self.mission, self.plan, self.cycles = mission, plan, cycles
+        self.mission, self.plan = mission, plan
+        suffix = any(s.phase == "suffix" for s in plan.subtasks)
+        self.cycles = cycles if suffix else 0
+        """Suffix cycles of a rollout (0 for a finite task: no suffix sub-task)."""
         self.world = world if world is not None else mission.build_world()
         spec = mission.robot
         self.robot: Robot = make_robot(spec.model, self.world, spec.radius, spec.params)
@@ -126,9 +129,10 @@ class MissionEnv(gym.Env[np.ndarray, np.ndarray]):
             )
             for sub in plan.subtasks
         ]
-        self.sequence = stage_sequence(plan, cycles)
+        self.sequence = stage_sequence(plan, self.cycles)
         self.prefix_stages = sum(1 for s in plan.subtasks if s.phase == "prefix")
         self.suffix_length = len(self.sequence) - self.prefix_stages
+        self.cycle_length = max(1, sum(1 for s in plan.subtasks if s.phase == "suffix"))
         space = self.envs[0].observation_space
         assert isinstance(space, spaces.Box)
         low = np.append(space.low, 0.0).astype(np.float32)
@@ -157,10 +161,8 @@ class MissionEnv(gym.Env[np.ndarray, np.ndarray]):
             self.trace.append(label)
 
     def _begin_stage(self) -> None:
-        if (
-            self.stage >= self.prefix_stages
-            and (self.stage - self.prefix_stages) % max(1, self.suffix_length // self.cycles) == 0
-        ):
+        into = self.stage - self.prefix_stages
+        if into >= 0 and into % self.cycle_length == 0:
             self.cycle_starts.append(len(self.trace) - 1)
 
     def reset(

@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import pickle
 import time
+import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -43,7 +45,7 @@ from workers.callbacks import (
     StopFn,
     StopOnRequest,
     StopOnSuccessRate,
-    latest_checkpoint,
+    checkpoints,
     prune_checkpoints,
 )
 from workers.evaluation import evaluate_subtask, evaluation_options
@@ -121,6 +123,10 @@ def subtask_env(
 def hyperparameters(training: TrainingSpec, action_dim: int) -> dict[str, Any]:
     """The SB3 constructor keywords of ``training.hyperparams`` (RL-Zoo names mapped)."""
     params = {k: v for k, v in training.hyperparams.items() if k not in ("noise_type", "noise_std")}
+    if training.algorithm != "ppo" and "buffer_size" not in params:
+        # SB3's default (1e6) is larger than any budget here and every checkpoint pickles the
+        # whole preallocated buffer: never keep more transitions than the job can collect.
+        params["buffer_size"] = training.n_timesteps
     kwargs = training.policy_kwargs()
     kwargs["activation_fn"] = ACTIVATION_MODULES[kwargs["activation_fn"]]
     params["policy_kwargs"] = kwargs
@@ -259,19 +265,21 @@ def _model(
 ) -> tuple[BaseAlgorithm, int]:
     """A fresh model, or the newest checkpoint in ``folder`` with its replay buffer."""
     cls = ALGORITHMS[training.algorithm]
-    found = latest_checkpoint(folder)
-    if found is None:
-        shape = env.action_space.shape
-        assert shape is not None
-        params = hyperparameters(training, int(np.prod(shape)))
-        model = cls("MlpPolicy", env, seed=seed, device="cpu", verbose=0, **params)
-        return model, 0
-    path, buffer, steps = found
-    model = cls.load(path, env=env, device="cpu")
-    if buffer is not None and isinstance(model, OffPolicyAlgorithm):
-        model.load_replay_buffer(buffer)
-    model.num_timesteps = steps
-    return model, steps
+    for path, buffer, steps in checkpoints(folder):
+        try:
+            model = cls.load(path, env=env, device="cpu")
+            if buffer is not None and isinstance(model, OffPolicyAlgorithm):
+                model.load_replay_buffer(buffer)
+        except (OSError, EOFError, ValueError, RuntimeError, pickle.UnpicklingError) as err:
+            # a checkpoint cut short by the kill that restarted this job: use an older one
+            warnings.warn(f"skipping unreadable checkpoint {path.name}: {err}", stacklevel=2)
+            continue
+        model.num_timesteps = steps
+        return model, steps
+    shape = env.action_space.shape
+    assert shape is not None
+    params = hyperparameters(training, int(np.prod(shape)))
+    return cls("MlpPolicy", env, seed=seed, device="cpu", verbose=0, **params), 0
 
 
 def _checkpoint(model: BaseAlgorithm, folder: Path, steps: int) -> None:

@@ -23,7 +23,7 @@ def test_train_then_rollout(tmp_path: Path) -> None:
     args = ["train", str(mission), "--out", str(out), "--jobs", "2", "--timesteps", "100"]
     result = runner.invoke(app, [*args, "--seed", "4", "--episodes", "2"])
     assert result.exit_code == 0, result.output
-    assert "mission success" in result.output and "bundle written" in result.output
+    assert "mission success rate" in result.output and "bundle written" in result.output
     for k in range(4):
         assert f"sub-task {k}: 100 steps (budget)" in result.output
     bundle = out / "bundle.zip"

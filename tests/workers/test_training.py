@@ -160,7 +160,10 @@ def test_cancel_stops_after_a_checkpoint_and_resumes(
     stopped = train_subtask(job(mission, plan, subtask=1), out, should_stop=should_stop)
     assert stopped.stopped == "cancelled" and stopped.steps == 1 and stopped.final is None
     assert Path(stopped.model_path).is_file() and not (out / "result.json").exists()
-    resumed = train_subtask(job(mission, plan, subtask=1, n_timesteps=120), out)
+    # a newer checkpoint cut short (the job was killed while writing it) is skipped
+    (out / "checkpoints" / "model_50_steps.zip").write_bytes(b"PK\x03\x04 cut short")
+    with pytest.warns(UserWarning, match="model_50_steps.zip"):
+        resumed = train_subtask(job(mission, plan, subtask=1, n_timesteps=120), out)
     assert (resumed.resumed_from, resumed.steps, resumed.stopped) == (1, 120, "budget")
 
 
