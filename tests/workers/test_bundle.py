@@ -6,10 +6,12 @@ from __future__ import annotations
 import io
 import json
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
+from gymnasium import spaces
 from stable_baselines3 import SAC
 
 from planner.errors import LtlnavError
@@ -21,6 +23,13 @@ from workers.training import TrainResult, train_subtask
 from workers.training_spec import SubtaskJob, plan_to_dict
 
 from .test_training import tiny_mission
+
+
+def deterministic(model: SAC) -> Callable[[np.ndarray], np.ndarray]:
+    def act(obs: np.ndarray) -> np.ndarray:
+        return np.asarray(model.predict(obs, deterministic=True)[0])
+
+    return act
 
 
 @pytest.fixture(scope="module")
@@ -51,9 +60,7 @@ def trained(
     ]
     models = [SAC.load(r.model_path, device="cpu") for r in results]
     env = MissionEnv(mission, plan, mission.training.env_options(), cycles=1)
-    act = stage_policies(
-        env.sequence, [lambda o, m=m: m.predict(o, deterministic=True)[0] for m in models]
-    )
+    act = stage_policies(env.sequence, [deterministic(m) for m in models])
     evaluation = rollout_mission(act, env, episodes=1)
     env.close()
     seeds = list(range(len(plan.subtasks)))
@@ -108,7 +115,9 @@ def test_concatenated_policy_acts_like_the_trained_models(
     obs, _ = env.reset(seed=0)
     policy.reset(obs)
     rng = np.random.default_rng(0)
-    low, high = env.observation_space.low, env.observation_space.high
+    space = env.observation_space
+    assert isinstance(space, spaces.Box)
+    low, high = space.low, space.high
     for stage in range(len(env.sequence) + 3):  # beyond the rollout: the suffix cycles on
         probe = obs.copy()
         probe[:-1] = rng.uniform(np.maximum(low[:-1], -1), np.minimum(high[:-1], 1))
@@ -219,3 +228,63 @@ def test_a_model_archive_with_foreign_members_or_wrong_weights_is_refused(
     )
     with pytest.raises(BundleError, match="missing or misnamed"):
         read_bundle(escape)
+
+
+@pytest.mark.parametrize("algorithm", ["td3", "ppo"])
+def test_policies_of_other_algorithms_are_rebuilt_without_unpickling(
+    trained: tuple[MissionSpec, MissionPlan, list[TrainResult], Path],
+    tmp_path: Path,
+    algorithm: str,
+) -> None:
+    from stable_baselines3 import PPO, TD3
+
+    from workers.policy import SubtaskEntry, build_policy
+    from workers.training_spec import TrainingSpec
+
+    mission, plan, _, _ = trained
+    extra = {"n_steps": 32, "batch_size": 16} if algorithm == "ppo" else {}
+    kwargs = {"net_arch": [8], "activation_fn": "tanh"}
+    training = TrainingSpec.model_validate(
+        {
+            **mission.training.model_dump(),
+            "algorithm": algorithm,
+            "n_timesteps": 40,
+            "eval_freq": 40,
+            "final_eval_episodes": 1,
+            "hyperparams": {"policy_kwargs": kwargs, **extra},
+        }
+    )
+    spec = SubtaskJob(
+        mission=mission.model_dump(mode="json"),
+        plan=plan_to_dict(plan),
+        subtask=1,
+        training=training,
+        seed=0,
+    )
+    result = train_subtask(spec, tmp_path / algorithm)
+    blob = Path(result.model_path).read_bytes()
+    entry = SubtaskEntry(
+        index=1,
+        phase="prefix",
+        goal="b",
+        start=[0.0, 0.0],
+        path=[[0.0, 0.0]],
+        r_ball=0.1,
+        guide_centers=[[0.0, 0.0]],
+        model="models/subtask_1.zip",
+        algorithm=algorithm,
+        policy_kwargs=kwargs,
+        seed=0,
+        steps=40,
+        stopped="budget",
+        curve=[],
+        evaluation=None,
+    )
+    env = MissionEnv(mission, plan, training.env_options(), cycles=1)
+    policy = build_policy(entry, blob, env)
+    model = (PPO if algorithm == "ppo" else TD3).load(result.model_path, device="cpu")
+    obs, _ = env.envs[1].reset(seed=0)
+    assert np.allclose(
+        policy.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0]
+    )
+    env.close()

@@ -68,7 +68,7 @@ def plan(mission: MissionSpec) -> MissionPlan:
 
 
 def job(mission: MissionSpec, plan: MissionPlan, subtask: int = 0, **training: Any) -> SubtaskJob:
-    spec = mission.training.model_copy(update=training)
+    spec = TrainingSpec.model_validate({**mission.training.model_dump(), **training})
     return SubtaskJob(
         mission=mission.model_dump(mode="json"),
         plan=plan_to_dict(plan),
@@ -201,3 +201,45 @@ def test_stop_on_success_rate_reads_the_last_evaluation(
     assert not stopper._on_step() and stopper.reached
     assert evaluation.last_success_rate == pytest.approx(2 / 3)
     env.close()
+
+
+@pytest.mark.parametrize(
+    ("algorithm", "hyperparams"),
+    [
+        ("td3", {"noise_type": "normal", "noise_std": 0.2, "train_freq": [1, "step"]}),
+        ("ddpg", {"noise_type": "ornstein-uhlenbeck", "learning_starts": 20}),
+        ("ppo", {"n_steps": 32, "batch_size": 16, "n_epochs": 1}),
+    ],
+)
+def test_other_algorithms_train_with_rl_zoo_hyperparameters(
+    mission: MissionSpec,
+    plan: MissionPlan,
+    tmp_path: Path,
+    algorithm: str,
+    hyperparams: dict[str, Any],
+) -> None:
+    hyperparams = {**hyperparams, "policy_kwargs": {"net_arch": [8], "activation_fn": "tanh"}}
+    spec = job(
+        mission,
+        plan,
+        algorithm=algorithm,
+        hyperparams=hyperparams,
+        n_timesteps=64,
+        eval_freq=64,
+        final_eval_episodes=1,
+    )
+    result = train_subtask(spec, tmp_path / algorithm)
+    assert result.steps >= 64 and result.final is not None
+    assert Path(result.model_path).is_file()
+
+
+def test_whole_lasso_mode_trains_one_agent(
+    mission: MissionSpec, plan: MissionPlan, tmp_path: Path
+) -> None:
+    spec = job(
+        mission, plan, reward={"mode": "g-rrt"}, n_timesteps=64, eval_freq=64, final_eval_episodes=1
+    )
+    env = subtask_env(mission, plan, spec.training, 0)
+    assert len(env.legs) == len(plan.subtasks)  # one course through every sub-task
+    env.close()
+    assert train_subtask(spec, tmp_path / "g").steps == 64
