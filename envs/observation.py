@@ -64,8 +64,17 @@ def ray_directions(dim: int, count: int) -> FloatArray:
     return np.stack([rho * np.cos(phi), rho * np.sin(phi), z], axis=1)
 
 
+_SLACK = 1e-9
+"""Slack of the edge parameter test in 2D: a ray through a vertex hits either edge despite
+rounding."""
+_TINY = 1e-200
+"""Added to every ray/edge denominator: a ray parallel to an edge divides by it, not by 0."""
+_BIG = 1e200
+"""Turns a negative ball discriminant (the ray misses the ball) into a failed test."""
+
+
 class _Cell:
-    """The obstacles a ray cast from one grid cell can reach, stacked by kind."""
+    """The obstacles a ray cast from one grid cell can reach, stacked by kind (general path)."""
 
     def __init__(
         self,
@@ -83,13 +92,23 @@ class _Cell:
         self.edge_e: FloatArray | None = edge_e if len(edge_a) else None
 
 
+def _gap(lo: FloatArray, hi: FloatArray, cell_lo: FloatArray, cell_hi: FloatArray) -> FloatArray:
+    """Euclidean distance between boxes ``[lo, hi]`` ``(n, d)`` and the cell box."""
+    gap = np.maximum(0.0, np.maximum(cell_lo - hi, lo - cell_hi))
+    return np.sqrt((gap * gap).sum(axis=1))
+
+
 class RayCaster:
     """Exact distances along rays to boxes, balls, polygon edges and the world bounds.
 
-    Only obstacles whose bounding box comes within ``max_range`` of the robot's grid cell (cell
-    size ``max_range / 2``) are cast against; those sets are built lazily per cell. A ray that
-    starts inside an obstacle reads 0 for a box and a polygon and the exit distance for a ball
-    (the robot has crashed then anyway).
+    Only obstacles that come within ``max_range`` of the robot's grid cell (cell size
+    ``max_range / 2``) are cast against; those sets are built lazily per cell and stacked into
+    one matrix, so that a cast is a dozen numpy calls over rays x nearby obstacles: in 2D every
+    box, polygon and bounds edge is a segment (ray/segment intersection), in 3D boxes and the
+    outside of the bounds are slabs; balls solve the quadratic. A ray that starts inside an
+    obstacle reads 0 for a box, the exit distance for a polygon and ignores a ball (the robot
+    has crashed then anyway); points outside the open bounds or in a 2D box take the general
+    path (``cast_general``), which defines these cases.
     """
 
     def __init__(self, world: World, count: int, max_range: float) -> None:
@@ -97,10 +116,13 @@ class RayCaster:
         self.count = count
         self.max_range = float(max_range)
         self.directions = ray_directions(self.dim, count)
+        self._inv_dir = 1.0 / (self.directions + 1e-15)
         self._lo = np.asarray(world.bounds[:, 0], dtype=float)
         self._hi = np.asarray(world.bounds[:, 1], dtype=float)
         self._origin = self._lo.tolist()
+        self._lo_t, self._hi_t = self._lo.tolist(), self._hi.tolist()
         self._cell_size = self.max_range / 2.0
+        self._inv_size = 1.0 / self._cell_size
         obstacles = list(world.obstacles)
         boxes = [s for s in obstacles if isinstance(s, Box)]
         balls = [s for s in obstacles if isinstance(s, Ball)]
@@ -115,12 +137,17 @@ class RayCaster:
         self._edge_a = np.concatenate(a).reshape(-1, 2) if a else np.zeros((0, 2))
         self._edge_b = np.concatenate(b).reshape(-1, 2) if b else np.zeros((0, 2))
         self._cells: dict[tuple[int, ...], _Cell] = {}
+        self._fast: dict[tuple[int, ...], _FastCell2 | _FastCell3] = {}
+
+    def _key(self, x: Sequence[float]) -> tuple[int, ...]:
+        size = self._cell_size
+        return tuple([math.floor((v - o) / size) for v, o in zip(x, self._origin, strict=False)])
 
     def _cell(self, x: Sequence[float]) -> _Cell:
-        size = self._cell_size
-        key = tuple([math.floor((v - o) / size) for v, o in zip(x, self._origin, strict=False)])
+        key = self._key(x)
         found = self._cells.get(key)
         if found is None:
+            size = self._cell_size
             lo = self._lo + np.asarray(key, dtype=float) * size - self.max_range
             hi = lo + size + 2.0 * self.max_range
             box = np.all((self._box_lo <= hi) & (self._box_hi >= lo), axis=1)
@@ -148,6 +175,66 @@ class RayCaster:
     def cast(self, x: Sequence[float], rotation: tuple[float, float] | None = None) -> FloatArray:
         """``(count,)`` distances from ``x`` along every ray, capped at ``max_range``; in 2D
         ``rotation = (cos, sin)`` turns the rays by the robot's heading."""
+        return np.array(self.cast_scaled(x, rotation)) * self.max_range
+
+    def cast_scaled(
+        self, x: Sequence[float], rotation: tuple[float, float] | None = None
+    ) -> list[float]:
+        """:meth:`cast` divided by ``max_range`` (so in ``[0, 1]``), as a list: the fast path."""
+        if self.dim == 2:
+            return self._scaled2(x, rotation)
+        return self._scaled3(x)
+
+    def _fast_cell(self, key: tuple[int, ...]) -> _FastCell2 | _FastCell3:
+        cell = _FastCell2(self, key) if self.dim == 2 else _FastCell3(self, key)
+        self._fast[key] = cell
+        return cell
+
+    def _scaled2(self, x: Sequence[float], rotation: tuple[float, float] | None) -> list[float]:
+        x0, x1 = x[0], x[1]
+        (lo0, lo1), (hi0, hi1) = self._lo_t, self._hi_t
+        if not (lo0 < x0 < hi0 and lo1 < x1 < hi1):
+            return self._scaled_general(x, rotation)
+        inv = self._inv_size
+        key = (math.floor((x0 - lo0) * inv), math.floor((x1 - lo1) * inv))
+        cell = self._fast.get(key) or self._fast_cell(key)
+        for a0, a1, b0, b1 in cell.boxes:
+            if a0 <= x0 <= b0 and a1 <= x1 <= b1:
+                return self._scaled_general(x, rotation)
+        o0, o1 = cell.origin
+        p0, p1 = x0 - o0, x1 - o1
+        c, s = rotation if rotation is not None else (1.0, 0.0)
+        v = [c, s, p0 * c + p1 * s, p1 * c - p0 * s, p0, p1, 1.0, p0 * p0 + p1 * p1]
+        return cell.solve(np.array(v))
+
+    def _scaled3(self, x: Sequence[float]) -> list[float]:
+        x0, x1, x2 = x[0], x[1], x[2]
+        (lo0, lo1, lo2), (hi0, hi1, hi2) = self._lo_t, self._hi_t
+        if not (lo0 < x0 < hi0 and lo1 < x1 < hi1 and lo2 < x2 < hi2):
+            return self._scaled_general(x, None)
+        inv = self._inv_size
+        key = (
+            math.floor((x0 - lo0) * inv),
+            math.floor((x1 - lo1) * inv),
+            math.floor((x2 - lo2) * inv),
+        )
+        cell = self._fast.get(key) or self._fast_cell(key)
+        o0, o1, o2 = cell.origin
+        p0, p1, p2 = x0 - o0, x1 - o1, x2 - o2
+        return cell.solve(np.array([1.0, p0, p1, p2, p0 * p0 + p1 * p1 + p2 * p2]))
+
+    def _scaled_general(
+        self, x: Sequence[float], rotation: tuple[float, float] | None
+    ) -> list[float]:
+        ranges = self.cast_general(x, rotation) * (1.0 / self.max_range)
+        return np.minimum(np.maximum(ranges, 0.0), 1.0).tolist()
+
+    def cast_general(
+        self, x: Sequence[float], rotation: tuple[float, float] | None = None
+    ) -> FloatArray:
+        """The reference cast: per-kind slab, quadratic and edge tests over the cell's
+        obstacles, in metres (the fast path falls back to it for points outside the open bounds or
+        inside a 2D box, and the tests compare against it)."""
         p = np.array(x, dtype=float)
         u = self.directions
         if rotation is not None:
@@ -181,6 +268,218 @@ class RayCaster:
             ok = (t >= 0.0) & (along >= 0.0) & (along <= 1.0)
             best = np.minimum(best, np.where(ok, t, np.inf).min(axis=1))
         return best
+
+    def _segments(self) -> tuple[FloatArray, FloatArray]:
+        """2D: start points and edge vectors of the bounds, box (counter-clockwise) and polygon
+        edges."""
+        corners = [np.stack([self._lo, self._hi])] + [
+            np.stack([lo, hi]) for lo, hi in zip(self._box_lo, self._box_hi, strict=True)
+        ]
+        starts, ends = [self._edge_a], [self._edge_b]
+        for (x0, y0), (x1, y1) in corners:
+            ring = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+            starts.append(ring)
+            ends.append(np.roll(ring, -1, axis=0))
+        a = np.concatenate(starts)
+        return a, np.concatenate(ends) - a
+
+    def _slabs(self) -> tuple[FloatArray, FloatArray]:
+        """3D: corners of the boxes and of six slabs covering the outside of the bounds (as far
+        as a ray can reach)."""
+        lo, hi, m = self._lo, self._hi, 2.0 * self.max_range
+        los, his = [self._box_lo], [self._box_hi]
+        for axis in range(self.dim):
+            for side in (lo, hi):
+                a, b = lo - m, hi + m
+                if side is lo:
+                    b = b.copy()
+                    b[axis] = lo[axis]
+                else:
+                    a = a.copy()
+                    a[axis] = hi[axis]
+                los.append(a[None])
+                his.append(b[None])
+        return np.concatenate(los), np.concatenate(his)
+
+
+class _FastCell:
+    """One grid cell of the fast path. Everything a cast computes that is linear in the pose
+    features ``v`` (see :meth:`RayCaster.cast_scaled`) is the single product ``v @ matrix``,
+    written into views of ``lin``; the rest is a handful of elementwise numpy calls.
+
+    Coordinates are relative to the cell centre (small numbers, little rounding) and distances
+    are in units of the ray range. ``t`` holds a candidate distance per ray and obstacle
+    feature, ``s`` a test value: a candidate counts when ``t >= 0`` and ``s <= threshold``. The
+    last column is the range itself (``t = 1``, always counts).
+    """
+
+    def __init__(self, origin: list[float], rows: int, columns: int, count: int) -> None:
+        self.origin = origin
+        self.matrix = np.zeros((rows, columns))
+        self.lin = np.zeros(columns)
+        self.count = count
+        self.threshold = 0.0
+        self.boxes: list[tuple[float, float, float, float]] = []
+        """2D: the closed boxes meeting the cell (a ray from inside one takes the general path)."""
+        self._used = 0
+
+    def block(self, *shape: int) -> tuple[FloatArray, FloatArray]:
+        """The next block of columns: its ``(rows, *shape)`` part of the matrix (to fill) and
+        its ``shape`` view of ``lin``."""
+        size = math.prod(shape)
+        part = slice(self._used, self._used + size)
+        self._used += size
+        rows = self.matrix.shape[0]
+        return self.matrix[:, part].reshape(rows, *shape), self.lin[part].reshape(shape)
+
+    def candidates(self, *widths: int) -> list[tuple[FloatArray, FloatArray]]:
+        """Allocate ``t`` and ``s`` and return their ``(t, s)`` column blocks of ``widths``."""
+        total = sum(widths)
+        self.t = np.zeros((self.count, total + 1))
+        self.t[:, -1] = 1.0
+        self.s = np.zeros_like(self.t)
+        self.bad = np.zeros(self.t.shape, dtype=bool)
+        self.bad_s = np.zeros(self.t.shape, dtype=bool)
+        out, start = [], 0
+        for w in widths:
+            out.append((self.t[:, start : start + w], self.s[:, start : start + w]))
+            start += w
+        return out
+
+    def balls(self, bn: FloatArray, kk: FloatArray) -> None:
+        """Ray/ball views: ``bn`` (count, balls) distance to the point of closest approach,
+        ``kk`` (balls,) squared distance to the centre minus squared radius."""
+        self.bn, self.kk = bn, kk
+        self.disc = np.zeros(bn.shape)
+
+    def finish(self) -> list[float]:
+        """Per ray, the least candidate that counts."""
+        t = self.t
+        np.less(t, 0.0, out=self.bad)
+        np.greater(self.s, self.threshold, out=self.bad_s)
+        np.logical_or(self.bad, self.bad_s, out=self.bad)
+        np.putmask(t, self.bad, math.inf)
+        result: list[float] = t.min(axis=1).tolist()
+        return result
+
+    def solve_balls(self, t_ball: FloatArray, s_ball: FloatArray) -> None:
+        """Entry distance ``bn - sqrt(disc)``, counting only if ``disc >= 0``."""
+        disc, bn = self.disc, self.bn
+        np.multiply(bn, bn, out=disc)
+        np.subtract(disc, self.kk, out=disc)
+        np.multiply(disc, -_BIG, out=s_ball)
+        np.abs(disc, out=disc)
+        np.sqrt(disc, out=disc)
+        np.subtract(bn, disc, out=t_ball)
+
+
+class _FastCell2(_FastCell):
+    """2D: segments (bounds, box and polygon edges) and balls; ``v = (c, s, a, b, p0, p1, 1,
+    |p|^2)`` with ``p`` the robot point, ``(c, s)`` the heading and ``(a, b)`` the point in the
+    robot frame."""
+
+    def __init__(self, caster: RayCaster, key: tuple[int, ...]) -> None:
+        size, rng = caster._cell_size, caster.max_range
+        cell_lo = caster._lo + np.asarray(key, dtype=float) * size
+        cell_hi = cell_lo + size
+        o = (cell_lo + cell_hi) / 2.0
+        a, e = caster._segments()
+        keep = _gap(np.minimum(a, a + e), np.maximum(a, a + e), cell_lo, cell_hi) <= rng * 1.000001
+        a, e = a[keep] - o, e[keep]
+        c, r = caster._ball_c, caster._ball_r
+        near = _gap(c - r[:, None], c + r[:, None], cell_lo, cell_hi) <= rng * 1.000001
+        c, r = c[near] - o, r[near]
+        k, ns, nb = caster.count, len(a), len(c)
+        super().__init__(o.tolist(), 8, 2 * k * ns + k * nb + ns + nb, k)
+        self.threshold = 0.5 + _SLACK
+        d0, d1 = caster.directions[:, :1], caster.directions[:, 1:]
+        e0, e1 = e[:, 0], e[:, 1]
+        m0, m1 = a[:, 0] + 0.5 * e0, a[:, 1] + 0.5 * e1
+        den_m, self.den = self.block(k, ns)
+        den_m[0], den_m[1], den_m[6] = rng * (d0 * e1 - d1 * e0), -rng * (d0 * e0 + d1 * e1), _TINY
+        sn_m, self.sn = self.block(k, ns)
+        sn_m[0], sn_m[1] = rng * (m0 * d1 - m1 * d0), rng * (m0 * d0 + m1 * d1)
+        sn_m[2], sn_m[3] = -rng * d1, rng * d0
+        bn_m, bn = self.block(k, nb)
+        c0, c1 = c[:, 0], c[:, 1]
+        bn_m[0], bn_m[1] = (c0 * d0 + c1 * d1) / rng, (d0 * c1 - d1 * c0) / rng
+        bn_m[2], bn_m[3] = -d0 / rng, -d1 / rng
+        tn_m, self.tnum = self.block(ns)
+        tn_m[6], tn_m[4], tn_m[5] = a[:, 0] * e1 - a[:, 1] * e0, -e1, e0
+        kk_m, kk = self.block(nb)
+        inv2 = 1.0 / (rng * rng)
+        kk_m[7], kk_m[4], kk_m[5] = inv2, -2.0 * c0 * inv2, -2.0 * c1 * inv2
+        kk_m[6] = (c0 * c0 + c1 * c1 - r * r) * inv2
+        self.balls(bn, kk)
+        (self.t_seg, self.s_seg), (self.t_ball, self.s_ball) = self.candidates(ns, nb)
+        lo, hi = caster._box_lo, caster._box_hi
+        meet = _gap(lo, hi, cell_lo, cell_hi) <= 0.0
+        self.boxes = [(b[0], b[1], b[2], b[3]) for b in np.hstack([lo, hi])[meet].tolist()]
+
+    def solve(self, v: FloatArray) -> list[float]:
+        np.matmul(v, self.matrix, out=self.lin)
+        if self.tnum.size:
+            np.divide(self.tnum, self.den, out=self.t_seg)
+            np.divide(self.sn, self.den, out=self.s_seg)
+            np.abs(self.s_seg, out=self.s_seg)
+        if self.kk.size:
+            self.solve_balls(self.t_ball, self.s_ball)
+        return self.finish()
+
+
+class _FastCell3(_FastCell):
+    """3D: slabs (boxes and six half-spaces outside the bounds) and balls; ``v = (1, p0, p1, p2,
+    |p|^2)``. The rays keep their world-frame directions, so the slab entry and exit planes of
+    every ray are fixed."""
+
+    def __init__(self, caster: RayCaster, key: tuple[int, ...]) -> None:
+        size, rng = caster._cell_size, caster.max_range
+        cell_lo = caster._lo + np.asarray(key, dtype=float) * size
+        cell_hi = cell_lo + size
+        o = (cell_lo + cell_hi) / 2.0
+        lo, hi = caster._slabs()
+        keep = _gap(lo, hi, cell_lo, cell_hi) <= rng * 1.000001
+        lo, hi = lo[keep] - o, hi[keep] - o
+        c, r = caster._ball_c, caster._ball_r
+        near = _gap(c - r[:, None], c + r[:, None], cell_lo, cell_hi) <= rng * 1.000001
+        c, r = c[near] - o, r[near]
+        k, nx, nb = caster.count, len(lo), len(c)
+        super().__init__(o.tolist(), 5, 2 * k * nx * 3 + k * nb + nb, k)
+        inv = caster._inv_dir[:, None, :] / rng
+        forward = caster._inv_dir[:, None, :] >= 0.0
+        for entry in (True, False):
+            m, view = self.block(k, nx, 3)
+            corner = np.where(forward == entry, lo[None], hi[None])
+            m[0] = corner * inv
+            for axis in range(3):
+                m[1 + axis, :, :, axis] = -inv[:, :, axis]
+            if entry:
+                self.t_near = view
+            else:
+                self.t_far = view
+        d = caster.directions
+        bn_m, bn = self.block(k, nb)
+        bn_m[0] = d @ c.T / rng
+        for axis in range(3):
+            bn_m[1 + axis] = -d[:, axis : axis + 1] / rng
+        kk_m, kk = self.block(nb)
+        inv2 = 1.0 / (rng * rng)
+        kk_m[4], kk_m[0] = inv2, ((c * c).sum(axis=1) - r * r) * inv2
+        for axis in range(3):
+            kk_m[1 + axis] = -2.0 * c[:, axis] * inv2
+        self.balls(bn, kk)
+        (self.t_box, self.s_box), (self.t_ball, self.s_ball) = self.candidates(nx, nb)
+
+    def solve(self, v: FloatArray) -> list[float]:
+        np.matmul(v, self.matrix, out=self.lin)
+        if self.t_box.size:
+            self.t_near.max(axis=2, out=self.t_box)
+            np.maximum(self.t_box, 0.0, out=self.t_box)
+            self.t_far.min(axis=2, out=self.s_box)
+            np.subtract(self.t_box, self.s_box, out=self.s_box)
+        if self.kk.size:
+            self.solve_balls(self.t_ball, self.s_ball)
+        return self.finish()
 
 
 class ObservationBuilder:
@@ -246,6 +545,5 @@ class ObservationBuilder:
                         u = (cj - xj) * inv
                         out.append(u if -1.0 <= u <= 1.0 else (1.0 if u > 0.0 else -1.0))
         if self.rays is not None:
-            ranges = self.rays.cast(x, rotation if self.dim == 2 else None)
-            out.extend(np.clip(ranges * (1.0 / self.rays.max_range), 0.0, 1.0).tolist())
+            out.extend(self.rays.cast_scaled(x, rotation if self.dim == 2 else None))
         return np.array(out, dtype=np.float32)
