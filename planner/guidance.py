@@ -23,6 +23,7 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -103,6 +104,11 @@ class Guide:
     _keys: np.ndarray = field(repr=False)
     _table: np.ndarray = field(repr=False)
     _buckets: dict[tuple[int, ...], tuple[tuple[int, tuple[float, ...]], ...]] = field(repr=False)
+    _flat: tuple[Any, ...] = field(repr=False)
+    """2D/3D scalar path: ``(o_0, .., o_d-1, 1 / cell, stride_0, .., stride_d-1, r^2)``."""
+    _flat_buckets: dict[int, tuple[tuple[Any, ...], ...]] = field(repr=False)
+    """Flattened cell key -> ``(i, c_0, .., c_d-1)`` of the balls meeting the cell, highest
+    index first."""
 
     @classmethod
     def from_path(cls, path: np.ndarray, r: float, spacing: float | None = None) -> Guide:
@@ -149,6 +155,10 @@ class Guide:
             table[row, : len(ids)] = ids
         strides = np.cumprod(np.concatenate([[1], shape[::-1][:-1]]))[::-1]
         flat = np.array([int(np.dot(k, strides)) for k in keys_sorted], dtype=np.int64)
+        flat_buckets = {
+            int(np.dot(key, strides)): tuple((i, *c) for i, c in bucket)
+            for key, bucket in buckets.items()
+        }
         return cls(
             centers=centers,
             dist_to_go=dist,
@@ -163,6 +173,8 @@ class Guide:
             _keys=flat,
             _table=table,
             _buckets=buckets,
+            _flat=(*origin.tolist(), 1.0 / cell, *(int(v) for v in strides), r * r),
+            _flat_buckets=flat_buckets,
         )
 
     @property
@@ -197,20 +209,19 @@ class Guide:
         return np.where(idx >= 0, self.dist_to_go[np.maximum(idx, 0)], np.inf)
 
     def locate(self, point: np.ndarray | tuple[float, ...] | list[float]) -> int:
-        """Scalar :meth:`ball_index` of one point in pure Python (a few microseconds)."""
+        """Scalar :meth:`ball_index` of one point in pure Python (well under a microsecond in
+        2D and 3D)."""
         xs = point.tolist() if isinstance(point, np.ndarray) else point
+        if len(xs) == 2 == len(self._origin_t):
+            return _locate2(self, xs[0], xs[1])
+        if len(xs) == 3 == len(self._origin_t):
+            return _locate3(self, xs[0], xs[1], xs[2])
         inv = self._inv_cell
         key = tuple([math.floor((v - o) * inv) for v, o in zip(xs, self._origin_t, strict=False)])
         bucket = self._buckets.get(key)
         if bucket is None:
             return -1
         rr = self._rr
-        if len(xs) == 2:
-            x0, x1 = xs
-            for i, (c0, c1) in bucket:
-                if (x0 - c0) * (x0 - c0) + (x1 - c1) * (x1 - c1) <= rr:
-                    return i
-            return -1
         for i, c in bucket:
             s = 0.0
             for v, w in zip(xs, c, strict=False):
@@ -218,6 +229,35 @@ class Guide:
             if s <= rr:
                 return i
         return -1
+
+
+def _locate2(guide: Guide, x0: float, x1: float) -> int:
+    """:meth:`Guide.locate` of a 2D point. A key computed for a point outside the grid may name
+    another cell, but no ball contains such a point and every candidate is tested exactly."""
+    o0, o1, inv, s0, s1, rr = guide._flat
+    bucket = guide._flat_buckets.get(
+        math.floor((x0 - o0) * inv) * s0 + math.floor((x1 - o1) * inv) * s1
+    )
+    if bucket is not None:
+        for i, c0, c1 in bucket:
+            if (x0 - c0) * (x0 - c0) + (x1 - c1) * (x1 - c1) <= rr:
+                return i
+    return -1
+
+
+def _locate3(guide: Guide, x0: float, x1: float, x2: float) -> int:
+    """:meth:`Guide.locate` of a 3D point (see :func:`_locate2`)."""
+    o0, o1, o2, inv, s0, s1, s2, rr = guide._flat
+    bucket = guide._flat_buckets.get(
+        math.floor((x0 - o0) * inv) * s0
+        + math.floor((x1 - o1) * inv) * s1
+        + math.floor((x2 - o2) * inv) * s2
+    )
+    if bucket is not None:
+        for i, c0, c1, c2 in bucket:
+            if (x0 - c0) * (x0 - c0) + (x1 - c1) * (x1 - c1) + (x2 - c2) * (x2 - c2) <= rr:
+                return i
+    return -1
 
 
 @dataclass(frozen=True)
@@ -241,15 +281,44 @@ class ProgressTracker:
 
     ``reset`` starts envs afresh (optionally at ball ``k``, for a start-state curriculum);
     ``update`` consumes the new points and reports which envs made progress.
-    ``update_one`` is the allocation-free scalar path for one env.
+    ``update_one`` is the allocation-free scalar path for one env: it reads plain Python
+    mirrors of ``index`` and ``d_min`` and writes both on progress. The arrays are therefore
+    read-only views; assign a whole new array (``tracker.index = ...``) to change them.
     """
 
     def __init__(self, guide: Guide, num_envs: int = 1) -> None:
         self.guide = guide
         self.num_envs = num_envs
-        self.index = np.full(num_envs, -1, dtype=np.int64)
-        self.d_min = np.full(num_envs, np.inf)
+        self._index = np.full(num_envs, -1, dtype=np.int64)
+        self._d_min = np.full(num_envs, np.inf)
+        self._index_view = _read_only(self._index)
+        self._d_min_view = _read_only(self._d_min)
+        self._index_list: list[int] = self._index.tolist()
+        self._d_min_list: list[float] = self._d_min.tolist()
         self._dist = guide.dist_to_go.tolist()
+        dim = guide.centers.shape[1]
+        self._dim = dim if dim in (2, 3) else 0
+
+    @property
+    def index(self) -> np.ndarray:
+        """``(num_envs,)`` progress index per env (-1 before any ball); read-only view."""
+        return self._index_view
+
+    @index.setter
+    def index(self, value: np.ndarray) -> None:
+        self._index[:] = value
+        self._index_list = self._index.tolist()
+
+    @property
+    def d_min(self) -> np.ndarray:
+        """``(num_envs,)`` least distance-to-go reached per env (inf before any ball);
+        read-only view."""
+        return self._d_min_view
+
+    @d_min.setter
+    def d_min(self, value: np.ndarray) -> None:
+        self._d_min[:] = value
+        self._d_min_list = self._d_min.tolist()
 
     def reset(
         self,
@@ -273,29 +342,46 @@ class ProgressTracker:
             idx = self.guide.ball_index(np.asarray(points).reshape(len(sel), -1))
         else:
             idx = np.full(sel.shape, -1, dtype=np.int64)
-        self.index[sel] = idx
-        self.d_min[sel] = np.where(idx >= 0, self.guide.dist_to_go[np.maximum(idx, 0)], np.inf)
+        self._index[sel] = idx
+        self._d_min[sel] = np.where(idx >= 0, self.guide.dist_to_go[np.maximum(idx, 0)], np.inf)
+        self._index_list = self._index.tolist()
+        self._d_min_list = self._d_min.tolist()
 
     def update(self, points: np.ndarray) -> StepProgress:
         """Consume one point per env ``(num_envs, d)``; a point improves when its ``D`` is
         strictly below the env's ``D_min`` so far."""
         idx = self.guide.ball_index(points)
         d = np.where(idx >= 0, self.guide.dist_to_go[np.maximum(idx, 0)], np.inf)
-        improved = d < self.d_min
-        self.d_min = np.where(improved, d, self.d_min)
-        self.index = np.where(improved, idx, self.index)
-        return StepProgress(improved=improved, index=self.index.copy(), d=d)
+        improved = d < self._d_min
+        self._d_min[:] = np.where(improved, d, self._d_min)
+        self._index[:] = np.where(improved, idx, self._index)
+        self._index_list = self._index.tolist()
+        self._d_min_list = self._d_min.tolist()
+        return StepProgress(improved=improved, index=self._index.copy(), d=d)
 
     def update_one(
         self, env: int, point: np.ndarray | tuple[float, ...] | list[float]
     ) -> tuple[bool, int, float]:
         """Scalar :meth:`update` of env ``env``: ``(improved, index, d)``."""
-        i = self.guide.locate(point)
+        if self._dim == 2:
+            i = _locate2(self.guide, point[0], point[1])
+        elif self._dim == 3:
+            i = _locate3(self.guide, point[0], point[1], point[2])
+        else:
+            i = self.guide.locate(point)
         if i < 0:
-            return False, int(self.index[env]), math.inf
+            return False, self._index_list[env], math.inf
         d = self._dist[i]
-        if d < self.d_min[env]:
-            self.d_min[env] = d
-            self.index[env] = i
+        if d < self._d_min_list[env]:
+            self._d_min_list[env] = d
+            self._index_list[env] = i
+            self._d_min[env] = d
+            self._index[env] = i
             return True, i, d
-        return False, int(self.index[env]), d
+        return False, self._index_list[env], d
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    view = array.view()
+    view.flags.writeable = False
+    return view
