@@ -23,7 +23,7 @@ from gymnasium import spaces
 
 from envs.factory import EnvOptions, make_env
 from envs.nav_env import NavEnv
-from envs.rewards import RegionLabeler, RewardConfig
+from envs.rewards import RegionLabeler
 from envs.robots import Robot, make_robot
 from planner.plan import MissionPlan
 from planner.world import World
@@ -46,17 +46,6 @@ class SubtaskEvaluation:
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
-
-
-def evaluation_options(options: EnvOptions) -> EnvOptions:
-    """The env options for evaluation: the training ones without the start curriculum (every
-    episode starts at the sub-task's real start) and with the default reward constants (the
-    rewards are not used; the goal-region judge is)."""
-    return EnvOptions(**{**_fields(options), "curriculum": 0.0, "rewards": RewardConfig()})
-
-
-def _fields(options: EnvOptions) -> dict[str, Any]:
-    return {name: getattr(options, name) for name in EnvOptions.field_names()}
 
 
 def evaluate_subtask(
@@ -101,6 +90,7 @@ def stage_sequence(plan: MissionPlan, cycles: int) -> list[int]:
 class MissionEnv(gym.Env[np.ndarray, np.ndarray]):
     """The whole mission as one episode: sub-task envs sharing one robot, switched in place.
 
+    ``options`` are the sub-task envs' options (``TrainingSpec.eval_env_options()``).
     Observation: the current sub-task env's observation, then the stage number (position in
     ``stage_sequence``). Ends on a collision (``failure = "collision"``), a sub-task running out
     of steps (``"timeout"``) or after the last stage; then ``info`` holds ``accepted`` (the
@@ -122,10 +112,9 @@ class MissionEnv(gym.Env[np.ndarray, np.ndarray]):
         self.world = world if world is not None else mission.build_world()
         spec = mission.robot
         self.robot: Robot = make_robot(spec.model, self.world, spec.radius, spec.params)
-        opts = evaluation_options(options)
         self.envs: list[NavEnv] = [
             make_env(
-                mission, sub, "rrt", world=self.world, plan=plan, robot=self.robot, options=opts
+                mission, sub, "rrt", world=self.world, plan=plan, robot=self.robot, options=options
             )
             for sub in plan.subtasks
         ]

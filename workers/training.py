@@ -48,7 +48,7 @@ from workers.callbacks import (
     checkpoints,
     prune_checkpoints,
 )
-from workers.evaluation import evaluate_subtask, evaluation_options
+from workers.evaluation import evaluate_subtask
 from workers.mission import MissionSpec, parse_mission
 from workers.training_spec import SubtaskJob, TrainingSpec, plan_from_dict
 
@@ -110,12 +110,11 @@ def subtask_env(
     subtask: int,
     evaluation: bool = False,
 ) -> NavEnv:
-    """The env of ``subtask`` as trained (or, with ``evaluation``, as evaluated: no curriculum);
+    """The env of ``subtask`` as trained (or, with ``evaluation``, as evaluated: see
+    ``TrainingSpec.eval_env_options``);
     ``g-rrt`` drives the whole lasso whatever ``subtask``."""
     mode = training.reward.mode
-    options = training.env_options()
-    if evaluation:
-        options = evaluation_options(options)
+    options = training.eval_env_options() if evaluation else training.env_options()
     target = None if mode == "g-rrt" else plan.subtasks[subtask]
     return make_env(mission, target, mode, world=mission.build_world(), plan=plan, options=options)
 

@@ -165,6 +165,16 @@ class TrainingSpec(BaseModel):
         100, ge=1, description="Whole-mission rollouts of the concatenated policy."
     )
     cycles: int = Field(3, ge=1, description="Suffix cycles of a whole-mission rollout.")
+    eval_start_noise: float = Field(
+        0.2,
+        ge=0,
+        description="Start perturbation (m) of every evaluation episode and mission rollout: "
+        "the dynamics and a deterministic policy are otherwise noise free, so N identical "
+        "trials would measure one trajectory.",
+    )
+    eval_heading_noise: float = Field(
+        0.4, ge=0, le=3.141592653589793, description="Start heading perturbation (rad), likewise."
+    )
     seed: int = Field(0, ge=0, description="Seed of the agents and the env resets.")
     torch_threads: int = Field(
         1, ge=1, description="torch threads per job (more is slower on a shared machine)."
@@ -221,6 +231,19 @@ class TrainingSpec(BaseModel):
         """The env options with the reward constants (``overrides`` replace fields)."""
         fields = {**self.env, **overrides}
         return EnvOptions(**fields, rewards=self.reward.config())
+
+    def eval_env_options(self) -> EnvOptions:
+        """The env options of evaluations and mission rollouts: the training ones from the
+        sub-task's real start (no curriculum, no stall termination), with the evaluation start
+        noise and the default reward constants (only the goal judge matters)."""
+        fields = {
+            **self.env,
+            "curriculum": 0.0,
+            "stall_steps": 0,
+            "start_noise": self.eval_start_noise,
+            "heading_noise": self.eval_heading_noise,
+        }
+        return EnvOptions(**fields)
 
     def policy_kwargs(self) -> dict[str, Any]:
         """``policy_kwargs`` over ``DEFAULT_POLICY_KWARGS`` (activation still a name)."""

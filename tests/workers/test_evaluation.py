@@ -73,13 +73,14 @@ def test_subtask_evaluation_counts_successes_collisions_and_timeouts(
 def test_mission_rollout_of_a_good_policy_is_accepted(
     mission: MissionSpec, plan: MissionPlan
 ) -> None:
-    env = MissionEnv(mission, plan, mission.training.env_options(), cycles=2)
+    env = MissionEnv(mission, plan, mission.training.eval_env_options(), cycles=2)
     assert env.sequence == stage_sequence(plan, 2)
     assert len(env.sequence) == 2 + 2 * 2  # prefix a, b; suffix (a, b) twice
     act = follower(lambda: env.envs[env.sequence[env.stage]])
     result = rollout_mission(act, env, episodes=2, seed=0)
     assert result.success_rate == 1.0 and result.failures == {}
     assert result.mean_steps is not None and len(result.trails) == 2
+    assert result.trails[0][0] != result.trails[1][0]  # evaluation start noise: two trials
     assert {"a", "b"} <= set().union(*env.trace)
     assert len(env.cycle_starts) == 2 and env.accepted()
     # the same positions without ever visiting b: the automaton rejects the trace
@@ -91,7 +92,7 @@ def test_mission_rollout_of_a_good_policy_is_accepted(
 def test_mission_failures_are_located_by_subtask_and_kind(
     mission: MissionSpec, plan: MissionPlan
 ) -> None:
-    env = MissionEnv(mission, plan, mission.training.env_options(), cycles=1)
+    env = MissionEnv(mission, plan, mission.training.eval_env_options(), cycles=1)
     parked = rollout_mission(lambda o: np.zeros(2, dtype=np.float32), env, episodes=2)
     assert parked.timeout_rate == 1.0 and parked.failures == {"0": {"timeout": 2}}
     assert parked.to_json()["failures"] == {"0": {"timeout": 2}}
@@ -116,3 +117,11 @@ def test_stage_policies_pick_the_stage_sub_policy() -> None:
     for stage in range(6):
         act(np.array([0.0, 0.0, 0.0, float(stage)]))
     assert calls == [0, 1, 2, 3, 2, 3]
+
+
+def test_evaluation_options_start_at_the_real_start_with_noise() -> None:
+    spec = tiny_mission(env={"curriculum": 0.7, "stall_steps": 30}, eval_start_noise=0.1)
+    options = spec.training.eval_env_options()
+    assert (options.curriculum, options.stall_steps, options.start_noise) == (0.0, 0, 0.1)
+    assert options.heading_noise == 0.4
+    assert spec.training.env_options().curriculum == 0.7
