@@ -219,6 +219,9 @@ class RayCaster:
             math.floor((x2 - lo2) * inv),
         )
         cell = self._fast.get(key) or self._fast_cell(key)
+        for a0, a1, a2, b0, b1, b2 in cell.boxes:
+            if a0 <= x0 <= b0 and a1 <= x1 <= b1 and a2 <= x2 <= b2:
+                return self._scaled_general(x, None)
         o0, o1, o2 = cell.origin
         p0, p1, p2 = x0 - o0, x1 - o1, x2 - o2
         return cell.solve(np.array([1.0, p0, p1, p2, p0 * p0 + p1 * p1 + p2 * p2]))
@@ -268,6 +271,12 @@ class RayCaster:
             ok = (t >= 0.0) & (along >= 0.0) & (along <= 1.0)
             best = np.minimum(best, np.where(ok, t, np.inf).min(axis=1))
         return best
+
+    def _boxes_meeting(self, cell_lo: FloatArray, cell_hi: FloatArray) -> list[tuple[float, ...]]:
+        """``(lo_0, .., hi_0, ..)`` of the closed boxes that meet the closed cell: a ray from a
+        point in one (or on its surface) takes the general path."""
+        meet = _gap(self._box_lo, self._box_hi, cell_lo, cell_hi) <= 0.0
+        return [tuple(b) for b in np.hstack([self._box_lo, self._box_hi])[meet].tolist()]
 
     def _segments(self) -> tuple[FloatArray, FloatArray]:
         """2D: start points and edge vectors of the bounds, box (counter-clockwise) and polygon
@@ -319,8 +328,8 @@ class _FastCell:
         self.lin = np.zeros(columns)
         self.count = count
         self.threshold = 0.0
-        self.boxes: list[tuple[float, float, float, float]] = []
-        """2D: the closed boxes meeting the cell (a ray from inside one takes the general path)."""
+        self.boxes: list[tuple[float, ...]] = []
+        """The closed boxes meeting the cell, see ``RayCaster._boxes_meeting``."""
         self._used = 0
 
     def block(self, *shape: int) -> tuple[FloatArray, FloatArray]:
@@ -412,9 +421,7 @@ class _FastCell2(_FastCell):
         kk_m[6] = (c0 * c0 + c1 * c1 - r * r) * inv2
         self.balls(bn, kk)
         (self.t_seg, self.s_seg), (self.t_ball, self.s_ball) = self.candidates(ns, nb)
-        lo, hi = caster._box_lo, caster._box_hi
-        meet = _gap(lo, hi, cell_lo, cell_hi) <= 0.0
-        self.boxes = [(b[0], b[1], b[2], b[3]) for b in np.hstack([lo, hi])[meet].tolist()]
+        self.boxes = caster._boxes_meeting(cell_lo, cell_hi)
 
     def solve(self, v: FloatArray) -> list[float]:
         np.matmul(v, self.matrix, out=self.lin)
@@ -469,6 +476,7 @@ class _FastCell3(_FastCell):
             kk_m[1 + axis] = -2.0 * c[:, axis] * inv2
         self.balls(bn, kk)
         (self.t_box, self.s_box), (self.t_ball, self.s_ball) = self.candidates(nx, nb)
+        self.boxes = caster._boxes_meeting(cell_lo, cell_hi)
 
     def solve(self, v: FloatArray) -> list[float]:
         np.matmul(v, self.matrix, out=self.lin)
