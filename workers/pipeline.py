@@ -23,7 +23,7 @@ from planner.errors import PlanningError
 from planner.plan import MissionPlan, plan_mission, verify_plan
 from workers.evaluation import MissionEnv, MissionEvaluation, rollout_mission, stage_policies
 from workers.mission import MissionSpec
-from workers.training import ALGORITHMS, TrainResult, train_subtask
+from workers.training import ALGORITHMS, TrainingError, TrainResult, train_subtask
 from workers.training_spec import SubtaskJob, plan_from_dict, plan_to_dict
 
 PipelineProgress = Callable[[int, int, float | None, int], None]
@@ -79,23 +79,15 @@ def run_pipeline(
     """Plan ``mission``, train its sub-tasks (``jobs`` processes, default the CPU count), roll
     out the concatenated policy and write ``out_dir/bundle.zip``. The training section
     (budget, seed, ...) is the mission's own: override it on the spec before calling."""
-    from workers.bundle import write_bundle
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    training = mission.training
-    if training.reward.mode == "g-rrt":
-        raise PlanningError(
+    if mission.training.reward.mode == "g-rrt":
+        raise TrainingError(
             "reward mode g-rrt trains one agent for the whole lasso; the bundle pipeline "
             "concatenates one agent per sub-task: use rrt, rrt-paper, ned or tl"
         )
     plan = plan_for(mission, out)
-    document, plan_doc = mission.model_dump(mode="json"), plan_to_dict(plan)
-    seeds = [training.seed + k for k in range(len(plan.subtasks))]
-    specs = [
-        SubtaskJob(mission=document, plan=plan_doc, subtask=k, training=training, seed=seeds[k])
-        for k in range(len(plan.subtasks))
-    ]
+    specs = subtask_jobs(mission, plan)
     workers = max(1, min(jobs or os.cpu_count() or 1, len(specs)))
     context = multiprocessing.get_context("fork")
     with context.Manager() as manager:
@@ -113,9 +105,32 @@ def run_pipeline(
         finally:
             done.set()
             relay.join()
+    return assemble(mission, plan, results, out / "bundle.zip")
+
+
+def subtask_jobs(mission: MissionSpec, plan: MissionPlan) -> list[SubtaskJob]:
+    """One training job per sub-task of ``plan``, seeded ``training.seed + k``."""
+    document, plan_doc = mission.model_dump(mode="json"), plan_to_dict(plan)
+    training = mission.training
+    return [
+        SubtaskJob(
+            mission=document, plan=plan_doc, subtask=k, training=training, seed=training.seed + k
+        )
+        for k in range(len(plan.subtasks))
+    ]
+
+
+def assemble(
+    mission: MissionSpec, plan: MissionPlan, results: list[TrainResult], bundle: str | Path
+) -> PipelineResult:
+    """After every sub-task is trained: whole-mission rollouts, then the bundle at ``bundle``
+    (what the service's chord callback runs too)."""
+    from workers.bundle import write_bundle
+
     evaluation = evaluate_results(mission, plan, results)
-    bundle = write_bundle(out / "bundle.zip", mission, plan, results, evaluation, seeds)
-    return PipelineResult(bundle=bundle, plan=plan, results=results, evaluation=evaluation)
+    seeds = [r.seed for r in results]
+    path = write_bundle(bundle, mission, plan, results, evaluation, seeds)
+    return PipelineResult(bundle=path, plan=plan, results=results, evaluation=evaluation)
 
 
 def _relay(updates: Any, done: threading.Event, on_progress: PipelineProgress | None) -> None:

@@ -76,6 +76,7 @@ class TrainResult:
     """What a training job produced."""
 
     subtask: int
+    seed: int
     model_path: str
     """The final policy (an SB3 .zip), or the last checkpoint of a cancelled job."""
     steps: int
@@ -229,6 +230,7 @@ def train_subtask(
         stopped = "target"
     result = TrainResult(
         subtask=spec.subtask,
+        seed=spec.seed,
         model_path=str(folder / f"model_{steps}_steps.zip"),
         steps=steps,
         resumed_from=resumed,

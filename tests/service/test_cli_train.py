@@ -60,6 +60,16 @@ def test_rollout_refuses_a_foreign_zip(tmp_path: Path) -> None:
     assert "not an ltlnav bundle" in result.output
 
 
+def test_train_refuses_the_whole_lasso_mode(tmp_path: Path) -> None:
+    data = copy.deepcopy(TINY)
+    data["training"]["reward"] = {"mode": "g-rrt"}
+    mission = tmp_path / "mission.yaml"
+    mission.write_text(yaml.safe_dump(data))
+    result = runner.invoke(app, ["train", str(mission), "--out", str(tmp_path / "run")])
+    assert result.exit_code == EXIT_BAD_INPUT
+    assert "g-rrt" in result.output and not (tmp_path / "run" / "plan.json").exists()
+
+
 def test_train_reports_an_unknown_hyperparameter(tmp_path: Path) -> None:
     data = copy.deepcopy(TINY)
     data["training"]["hyperparams"]["gama"] = 0.9
