@@ -7,13 +7,18 @@ planned through it with RRT*, the same seeded random actions (forward-biased) dr
 * ``bare``: the robot alone (``step``, ``observation``, ``collided``; reset to the start on a
   crash), the dynamics a plain Gymnasium wrapper would cost;
 * ``env rrt``: ``NavEnv`` with the default ``rrt`` reward and ``"guided"`` observation;
-* ``env rays``: the same with 8 rays.
+* ``env rays``: the same with 8 rays;
+* ``batch(8)``: eight ``env rrt`` envs in a stable-baselines3 ``DummyVecEnv`` (what training
+  steps), agent steps per second summed over the envs. Every env is stepped from Python one
+  after the other, so this is the single-env rate minus the vector wrapper's cost, not a
+  parallel speed-up (``SubprocVecEnv`` would spread envs over cores; the machine has two).
 
 ``overhead`` is the extra time per step of ``env rrt`` over ``bare`` (observation layout,
 progress, reward, Gymnasium API); ``reward`` is the part of it spent in the progress tracker,
-the goal test and the reward itself, replayed on the positions of the ``env rrt`` run.
-There is no batched env: every figure is one env stepped from Python.
-Run as ``.venv/bin/python bench/envs.py [--quick]``.
+the goal test and the reward itself, replayed on the positions of the ``env rrt`` run, as a
+share of the bare step. Runs are interleaved and the best of ``REPEATS`` is kept, so the
+figures of one row are measured side by side.
+Run as ``.venv/bin/python bench/envs.py [--quick] [--only MODEL]``.
 """
 
 from __future__ import annotations
@@ -32,6 +37,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 # Run as a script, bench/ comes first on sys.path and bench/envs.py would shadow the package.
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from stable_baselines3.common.vec_env import DummyVecEnv
+
 from envs.factory import make_env
 from envs.nav_env import NavEnv
 from envs.rewards import RegionTest, ScaledReward
@@ -45,6 +52,7 @@ from planner.world import World
 
 RADIUS = 0.1
 REPEATS = 3
+BATCH = 8
 
 
 @dataclass(frozen=True)
@@ -150,6 +158,19 @@ def env_rate(env: NavEnv, acts: np.ndarray, trace: list[list[float]] | None = No
     return rate
 
 
+def batch_rate(vec: DummyVecEnv, acts: np.ndarray) -> float:
+    """Agent steps per second summed over the envs of ``vec`` (auto-reset on episode end)."""
+    vec.seed(0)
+    vec.reset()
+    batch = acts[: len(acts) // vec.num_envs * vec.num_envs].reshape(
+        -1, vec.num_envs, acts.shape[1]
+    )
+    t0 = time.perf_counter()
+    for a in batch:
+        vec.step(a)
+    return batch.shape[0] * vec.num_envs / (time.perf_counter() - t0)
+
+
 def reward_seconds(env: NavEnv, trace: list[list[float]]) -> float:
     """Time of the progress update, goal test and reward over the recorded positions."""
     leg = env.legs[0]
@@ -176,21 +197,24 @@ def run(case: Case, quick: bool) -> list[str]:
     sub = SubTask(0, "prefix", "goal", path[0], path, 0, 0)
     robot = make_robot(case.model, world, RADIUS)
     envs = [make_env(mission, sub, "rrt", world=world, rays=r) for r in (0, 8)]
+    vec = DummyVecEnv([lambda: make_env(mission, sub, "rrt", world=world) for _ in range(BATCH)])
     try:
         acts = actions(steps, robot.action_dim, seed=2)
         trace: list[list[float]] = []
-        bare = full = rays = 0.0
+        bare = full = rays = batch = 0.0
         reward = float("inf")
         # Best of REPEATS interleaved runs: the machine is shared, and noise only slows runs.
         for k in range(REPEATS):
             bare = max(bare, bare_rate(robot, path[0], acts))
             full = max(full, env_rate(envs[0], acts, trace if k == 0 else None))
             rays = max(rays, env_rate(envs[1], acts))
+            batch = max(batch, batch_rate(vec, acts))
             reward = min(reward, reward_seconds(envs[0], trace) / len(trace))
     finally:
         robot.close()
         for env in envs:
             env.close()
+        vec.close()
     overhead = 100.0 * (bare / full - 1.0)
     share = 100.0 * reward * bare
     name = f"{case.model} {case.dim}D"
@@ -201,6 +225,7 @@ def run(case: Case, quick: bool) -> list[str]:
         f"{bare:,.0f}",
         f"{full:,.0f}",
         f"{rays:,.0f}",
+        f"{batch:,.0f}",
         f"{overhead:.0f} %",
         f"{share:.0f} % ({reward * 1e6:.1f} us)",
     ]
@@ -211,7 +236,16 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="a tenth of the steps")
     parser.add_argument("--only", help="run only this robot model")
     args = parser.parse_args()
-    header = ["robot", "world", "bare /s", "env rrt /s", "env rays /s", "overhead", "reward"]
+    header = [
+        "robot",
+        "world",
+        "bare /s",
+        "env rrt /s",
+        "env rays /s",
+        f"batch({BATCH}) /s",
+        "overhead",
+        "reward",
+    ]
     rows = [header]
     for case in CASES:
         if args.only and case.model != args.only:
@@ -219,7 +253,10 @@ def main() -> None:
         rows.append(run(case, args.quick))
         print(" | ".join(rows[-1]), file=sys.stderr, flush=True)
     widths = [max(len(r[k]) for r in rows) for k in range(len(header))]
-    print(f"agent steps per second, single env, one core, best of {REPEATS} (OMP_NUM_THREADS=1)")
+    print(
+        f"agent steps per second (batch: summed over {BATCH} envs stepped in turn), one core, "
+        f"best of {REPEATS} interleaved runs (OMP_NUM_THREADS=1)"
+    )
     for k, row in enumerate(rows):
         print("  ".join(v.rjust(w) for v, w in zip(row, widths, strict=True)))
         if k == 0:
