@@ -452,18 +452,17 @@ class _FastCell3(_FastCell):
         c, r = c[near] - o, r[near]
         k, nx, nb = caster.count, len(lo), len(c)
         super().__init__(o.tolist(), 5, 2 * k * nx * 3 + k * nb + nb, k)
-        inv = caster._inv_dir[:, None, :] / rng
-        forward = caster._inv_dir[:, None, :] >= 0.0
-        for entry in (True, False):
-            m, view = self.block(k, nx, 3)
-            corner = np.where(forward == entry, lo[None], hi[None])
-            m[0] = corner * inv
-            for axis in range(3):
-                m[1 + axis, :, :, axis] = -inv[:, :, axis]
-            if entry:
-                self.t_near = view
-            else:
-                self.t_far = view
+        inv = (caster._inv_dir / rng).T[:, :, None]
+        forward = (caster._inv_dir >= 0.0).T[:, :, None]
+        # (axis, ray, slab): entry and exit distances along each axis, reduced by hand over
+        # the three axes (faster than a numpy reduction over a length-3 axis).
+        near_m, near = self.block(3, k, nx)
+        far_m, far = self.block(3, k, nx)
+        near_m[0] = np.where(forward, lo.T[:, None, :], hi.T[:, None, :]) * inv
+        far_m[0] = np.where(forward, hi.T[:, None, :], lo.T[:, None, :]) * inv
+        for axis in range(3):
+            near_m[1 + axis, axis] = far_m[1 + axis, axis] = -inv[axis]
+        self.near, self.far = list(near), list(far)
         d = caster.directions
         bn_m, bn = self.block(k, nb)
         bn_m[0] = d @ c.T / rng
@@ -481,10 +480,13 @@ class _FastCell3(_FastCell):
     def solve(self, v: FloatArray) -> list[float]:
         np.matmul(v, self.matrix, out=self.lin)
         if self.t_box.size:
-            self.t_near.max(axis=2, out=self.t_box)
-            np.maximum(self.t_box, 0.0, out=self.t_box)
-            self.t_far.min(axis=2, out=self.s_box)
-            np.subtract(self.t_box, self.s_box, out=self.s_box)
+            (n0, n1, n2), (f0, f1, f2), t, s = self.near, self.far, self.t_box, self.s_box
+            np.maximum(n0, n1, out=t)
+            np.maximum(t, n2, out=t)
+            np.maximum(t, 0.0, out=t)
+            np.minimum(f0, f1, out=s)
+            np.minimum(s, f2, out=s)
+            np.subtract(t, s, out=s)
         if self.kk.size:
             self.solve_balls(self.t_ball, self.s_ball)
         return self.finish()
