@@ -448,8 +448,8 @@ class _FastCell3(_FastCell):
         keep = _gap(lo, hi, cell_lo, cell_hi) <= rng * 1.000001
         lo, hi = lo[keep] - o, hi[keep] - o
         c, r = caster._ball_c, caster._ball_r
-        near = _gap(c - r[:, None], c + r[:, None], cell_lo, cell_hi) <= rng * 1.000001
-        c, r = c[near] - o, r[near]
+        close = _gap(c - r[:, None], c + r[:, None], cell_lo, cell_hi) <= rng * 1.000001
+        c, r = c[close] - o, r[close]
         k, nx, nb = caster.count, len(lo), len(c)
         super().__init__(o.tolist(), 5, 2 * k * nx * 3 + k * nb + nb, k)
         inv = (caster._inv_dir / rng).T[:, :, None]
