@@ -89,7 +89,10 @@ def run_pipeline(
     plan = plan_for(mission, out)
     specs = subtask_jobs(mission, plan)
     workers = max(1, min(jobs or os.cpu_count() or 1, len(specs)))
-    context = multiprocessing.get_context("fork")
+    # forkserver: workers fork from a clean single-threaded server (this process runs a relay
+    # thread), which imports torch and stable-baselines3 once for all of them.
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(["workers.training"])
     with context.Manager() as manager:
         updates = manager.Queue()
         done = threading.Event()
