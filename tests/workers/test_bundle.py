@@ -288,3 +288,23 @@ def test_policies_of_other_algorithms_are_rebuilt_without_unpickling(
         policy.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0]
     )
     env.close()
+
+
+def test_loading_a_bundle_unpickles_nothing(
+    trained: tuple[MissionSpec, MissionPlan, list[TrainResult], Path],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import pickle
+
+    import cloudpickle
+
+    def refuse(*_: object, **__: object) -> None:
+        raise AssertionError("a bundle must not be unpickled")
+
+    for module, name in [(pickle, "loads"), (pickle, "load"), (cloudpickle, "loads")]:
+        monkeypatch.setattr(module, name, refuse)
+    monkeypatch.setattr(pickle, "Unpickler", refuse)
+    *_, bundle = trained
+    policy = ConcatenatedPolicy.load(bundle)
+    assert len(policy.policies) == 4
+    policy.close()
