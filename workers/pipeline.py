@@ -88,6 +88,9 @@ def run_pipeline(
         )
     plan = plan_for(mission, out)
     specs = subtask_jobs(mission, plan)
+    if on_progress is not None:  # every sub-task shows up at once, in order
+        for spec in specs:
+            on_progress(spec.subtask, 0, None, spec.training.n_timesteps)
     workers = max(1, min(jobs or os.cpu_count() or 1, len(specs)))
     # forkserver: workers fork from a clean single-threaded server (this process runs a relay
     # thread), which imports torch and stable-baselines3 once for all of them.
