@@ -291,8 +291,6 @@ class ProgressTracker:
         self.num_envs = num_envs
         self._index = np.full(num_envs, -1, dtype=np.int64)
         self._d_min = np.full(num_envs, np.inf)
-        self._index_view = _read_only(self._index)
-        self._d_min_view = _read_only(self._d_min)
         self._index_list: list[int] = self._index.tolist()
         self._d_min_list: list[float] = self._d_min.tolist()
         self._dist = guide.dist_to_go.tolist()
@@ -302,7 +300,7 @@ class ProgressTracker:
     @property
     def index(self) -> np.ndarray:
         """``(num_envs,)`` progress index per env (-1 before any ball); read-only view."""
-        return self._index_view
+        return _read_only(self._index)
 
     @index.setter
     def index(self, value: np.ndarray) -> None:
@@ -313,7 +311,7 @@ class ProgressTracker:
     def d_min(self) -> np.ndarray:
         """``(num_envs,)`` least distance-to-go reached per env (inf before any ball);
         read-only view."""
-        return self._d_min_view
+        return _read_only(self._d_min)
 
     @d_min.setter
     def d_min(self, value: np.ndarray) -> None:
@@ -382,6 +380,8 @@ class ProgressTracker:
 
 
 def _read_only(array: np.ndarray) -> np.ndarray:
+    """A fresh read-only view (made per access, so copies and pickles of a tracker stay
+    consistent)."""
     view = array.view()
     view.flags.writeable = False
     return view

@@ -4,7 +4,9 @@ the general per-kind path and a brute-force march along each ray), ``Guide.locat
 
 from __future__ import annotations
 
+import copy
 import math
+import pickle
 
 import numpy as np
 import pytest
@@ -155,3 +157,14 @@ def test_update_one_equals_the_batch_update_and_keeps_arrays_in_sync(dim: int) -
     point = guide.centers[0].tolist()
     i = guide.locate(point)
     assert scalar.update_one(0, point) == (False, guide.num_balls - 1, guide.dist_to_go[i])
+
+
+def test_tracker_copies_stay_consistent() -> None:
+    """Pickled or deep-copied trackers keep their scalar mirrors and arrays together."""
+    guide = Guide.from_path(np.array([[0.0, 0.0], [2.0, 0.0]]), r=0.25)
+    tracker = ProgressTracker(guide, 2)
+    tracker.update_one(1, [1.0, 0.0])
+    for twin in (copy.deepcopy(tracker), pickle.loads(pickle.dumps(tracker))):
+        assert twin.update_one(1, [1.5, 0.0]) == (True, 3, 0.5)
+        assert twin.index.tolist() == [-1, 3] and twin.d_min.tolist() == [math.inf, 0.5]
+    assert tracker.index.tolist() == [-1, 2] and tracker.d_min.tolist() == [math.inf, 1.0]
