@@ -175,43 +175,53 @@ class RayCaster:
     def cast(self, x: Sequence[float], rotation: tuple[float, float] | None = None) -> FloatArray:
         """``(count,)`` distances from ``x`` along every ray, capped at ``max_range``; in 2D
         ``rotation = (cos, sin)`` turns the rays by the robot's heading."""
-        return np.array(self.cast_scaled(x, rotation)) * self.max_range
+        fast = self._scaled2(x, rotation) if self.dim == 2 else self._scaled3(x)
+        if fast is None:
+            return self.cast_general(x, rotation)
+        return np.array(fast) * self.max_range
 
     def cast_scaled(
         self, x: Sequence[float], rotation: tuple[float, float] | None = None
     ) -> list[float]:
-        """:meth:`cast` divided by ``max_range`` (so in ``[0, 1]``), as a list: the fast path."""
-        if self.dim == 2:
-            return self._scaled2(x, rotation)
-        return self._scaled3(x)
+        """:meth:`cast` divided by ``max_range`` and clipped to ``[0, 1]``, as a list (what the
+        observation holds)."""
+        fast = self._scaled2(x, rotation) if self.dim == 2 else self._scaled3(x)
+        if fast is None:
+            ranges = self.cast_general(x, rotation) * (1.0 / self.max_range)
+            return np.minimum(np.maximum(ranges, 0.0), 1.0).tolist()
+        return fast
 
     def _fast_cell(self, key: tuple[int, ...]) -> _FastCell2 | _FastCell3:
         cell = _FastCell2(self, key) if self.dim == 2 else _FastCell3(self, key)
         self._fast[key] = cell
         return cell
 
-    def _scaled2(self, x: Sequence[float], rotation: tuple[float, float] | None) -> list[float]:
+    def _scaled2(
+        self, x: Sequence[float], rotation: tuple[float, float] | None
+    ) -> list[float] | None:
+        """The fast 2D cast in units of the range; None where the general path decides."""
         x0, x1 = x[0], x[1]
         (lo0, lo1), (hi0, hi1) = self._lo_t, self._hi_t
         if not (lo0 < x0 < hi0 and lo1 < x1 < hi1):
-            return self._scaled_general(x, rotation)
+            return None
         inv = self._inv_size
         key = (math.floor((x0 - lo0) * inv), math.floor((x1 - lo1) * inv))
         cell = self._fast.get(key) or self._fast_cell(key)
         for a0, a1, b0, b1 in cell.boxes:
             if a0 <= x0 <= b0 and a1 <= x1 <= b1:
-                return self._scaled_general(x, rotation)
+                return None
         o0, o1 = cell.origin
         p0, p1 = x0 - o0, x1 - o1
         c, s = rotation if rotation is not None else (1.0, 0.0)
         v = [c, s, p0 * c + p1 * s, p1 * c - p0 * s, p0, p1, 1.0, p0 * p0 + p1 * p1]
         return cell.solve(np.array(v))
 
-    def _scaled3(self, x: Sequence[float]) -> list[float]:
+    def _scaled3(self, x: Sequence[float]) -> list[float] | None:
+        """The fast 3D cast in units of the range; None where the general path decides."""
         x0, x1, x2 = x[0], x[1], x[2]
         (lo0, lo1, lo2), (hi0, hi1, hi2) = self._lo_t, self._hi_t
         if not (lo0 < x0 < hi0 and lo1 < x1 < hi1 and lo2 < x2 < hi2):
-            return self._scaled_general(x, None)
+            return None
         inv = self._inv_size
         key = (
             math.floor((x0 - lo0) * inv),
@@ -221,16 +231,10 @@ class RayCaster:
         cell = self._fast.get(key) or self._fast_cell(key)
         for a0, a1, a2, b0, b1, b2 in cell.boxes:
             if a0 <= x0 <= b0 and a1 <= x1 <= b1 and a2 <= x2 <= b2:
-                return self._scaled_general(x, None)
+                return None
         o0, o1, o2 = cell.origin
         p0, p1, p2 = x0 - o0, x1 - o1, x2 - o2
         return cell.solve(np.array([1.0, p0, p1, p2, p0 * p0 + p1 * p1 + p2 * p2]))
-
-    def _scaled_general(
-        self, x: Sequence[float], rotation: tuple[float, float] | None
-    ) -> list[float]:
-        ranges = self.cast_general(x, rotation) * (1.0 / self.max_range)
-        return np.minimum(np.maximum(ranges, 0.0), 1.0).tolist()
 
     def cast_general(
         self, x: Sequence[float], rotation: tuple[float, float] | None = None
