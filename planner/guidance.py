@@ -294,6 +294,8 @@ class ProgressTracker:
         self._index_list: list[int] = self._index.tolist()
         self._d_min_list: list[float] = self._d_min.tolist()
         self._dist = guide.dist_to_go.tolist()
+        self._flat = guide._flat
+        self._buckets = guide._flat_buckets
         dim = guide.centers.shape[1]
         self._dim = dim if dim in (2, 3) else 0
 
@@ -362,7 +364,18 @@ class ProgressTracker:
     ) -> tuple[bool, int, float]:
         """Scalar :meth:`update` of env ``env``: ``(improved, index, d)``."""
         if self._dim == 2:
-            i = _locate2(self.guide, point[0], point[1])
+            # _locate2 inlined: this runs on every env step.
+            x0, x1 = point[0], point[1]
+            o0, o1, inv, s0, s1, rr = self._flat
+            i = -1
+            bucket = self._buckets.get(
+                math.floor((x0 - o0) * inv) * s0 + math.floor((x1 - o1) * inv) * s1
+            )
+            if bucket is not None:
+                for j, c0, c1 in bucket:
+                    if (x0 - c0) * (x0 - c0) + (x1 - c1) * (x1 - c1) <= rr:
+                        i = j
+                        break
         elif self._dim == 3:
             i = _locate3(self.guide, point[0], point[1], point[2])
         else:
