@@ -2,7 +2,7 @@
 
 A plain function that the Celery task, the CLI pipeline and the tests call the same way. It is
 idempotent: ``out_dir`` holds checkpoints (model and replay buffer), ``evaluations.npz``, the
-logs (CSV, plus TensorBoard when the ``tensorboard`` package is installed) and ``result.json``;
+logs (CSV and TensorBoard) and ``result.json``;
 a restarted job resumes from the newest checkpoint (``num_timesteps`` restored, no step redone
 beyond the checkpoint) and a finished one returns its stored result.
 
@@ -13,7 +13,6 @@ policy) and ``result.json``.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import pickle
 import time
@@ -185,8 +184,7 @@ def train_subtask(
     eval_env.seed(spec.seed + 1)
     folder = out / "checkpoints"
     model, resumed = _model(training, env, folder, spec.seed)
-    formats = ["csv"] + (["tensorboard"] if importlib.util.find_spec("tensorboard") else [])
-    model.set_logger(configure(str(out / "logs" / f"run_{resumed}"), formats))
+    model.set_logger(configure(str(out / "logs" / f"run_{resumed}"), ["csv", "tensorboard"]))
     evaluation = ResumableEvalCallback(
         eval_env,
         n_eval_episodes=training.eval_episodes,

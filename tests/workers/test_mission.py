@@ -190,7 +190,7 @@ def test_3d_world_with_a_2d_robot() -> None:
 
 def test_unknown_top_level_key_lists_allowed_keys() -> None:
     assert problems(mission(planer={"seed": 1})) == [
-        ("planer", "unknown key; allowed here: name, world, robot, task, planner")
+        ("planer", "unknown key; allowed here: name, world, robot, task, planner, training")
     ]
 
 

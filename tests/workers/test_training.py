@@ -133,6 +133,7 @@ def test_train_checkpoint_then_resume_with_a_bigger_budget(
     assert (out / "checkpoints" / "model_200_steps.zip").is_file()
     assert (out / "checkpoints" / "model_replay_buffer_200_steps.pkl").is_file()
     assert (out / "logs" / "run_0" / "progress.csv").is_file()
+    assert list((out / "logs" / "run_0").glob("events.out.tfevents.*")), "no TensorBoard log"
     assert list(scratch.iterdir()) == []  # nothing written to $TMPDIR
     model = SAC.load(first.model_path, device="cpu")
     assert model.num_timesteps == 200
