@@ -345,17 +345,18 @@ class _FastCell:
         rows = self.matrix.shape[0]
         return self.matrix[:, part].reshape(rows, *shape), self.lin[part].reshape(shape)
 
-    def candidates(self, *widths: int) -> list[tuple[FloatArray, FloatArray]]:
-        """Allocate ``t`` and ``s`` and return their ``(t, s)`` column blocks of ``widths``."""
+    def candidates(self, *widths: int) -> list[FloatArray]:
+        """Allocate ``t`` and ``s`` (stacked as ``ts``) and return the ``(2, count, width)``
+        column blocks of ``ts`` of ``widths``."""
         total = sum(widths)
-        self.t = np.zeros((self.count, total + 1))
+        self.ts = np.zeros((2, self.count, total + 1))
+        self.t, self.s = self.ts[0], self.ts[1]
         self.t[:, -1] = 1.0
-        self.s = np.zeros_like(self.t)
         self.bad = np.zeros(self.t.shape, dtype=bool)
         self.bad_s = np.zeros(self.t.shape, dtype=bool)
         out, start = [], 0
         for w in widths:
-            out.append((self.t[:, start : start + w], self.s[:, start : start + w]))
+            out.append(self.ts[:, :, start : start + w])
             start += w
         return out
 
@@ -403,35 +404,37 @@ class _FastCell2(_FastCell):
         near = _gap(c - r[:, None], c + r[:, None], cell_lo, cell_hi) <= rng * 1.000001
         c, r = c[near] - o, r[near]
         k, ns, nb = caster.count, len(a), len(c)
-        super().__init__(o.tolist(), 8, 2 * k * ns + k * nb + ns + nb, k)
+        super().__init__(o.tolist(), 8, 3 * k * ns + k * nb + nb, k)
         self.threshold = 0.5 + _SLACK
         d0, d1 = caster.directions[:, :1], caster.directions[:, 1:]
         e0, e1 = e[:, 0], e[:, 1]
         m0, m1 = a[:, 0] + 0.5 * e0, a[:, 1] + 0.5 * e1
         den_m, self.den = self.block(k, ns)
         den_m[0], den_m[1], den_m[6] = rng * (d0 * e1 - d1 * e0), -rng * (d0 * e0 + d1 * e1), _TINY
-        sn_m, self.sn = self.block(k, ns)
+        # Numerators of the distance along the ray (the same for every ray) and of the edge
+        # parameter, divided by ``den`` in one call.
+        num_m, self.num = self.block(2, k, ns)
+        tn_m, sn_m = num_m[:, 0], num_m[:, 1]
+        tn_m[6], tn_m[4], tn_m[5] = a[:, 0] * e1 - a[:, 1] * e0, -e1, e0
         sn_m[0], sn_m[1] = rng * (m0 * d1 - m1 * d0), rng * (m0 * d0 + m1 * d1)
         sn_m[2], sn_m[3] = -rng * d1, rng * d0
         bn_m, bn = self.block(k, nb)
         c0, c1 = c[:, 0], c[:, 1]
         bn_m[0], bn_m[1] = (c0 * d0 + c1 * d1) / rng, (d0 * c1 - d1 * c0) / rng
         bn_m[2], bn_m[3] = -d0 / rng, -d1 / rng
-        tn_m, self.tnum = self.block(ns)
-        tn_m[6], tn_m[4], tn_m[5] = a[:, 0] * e1 - a[:, 1] * e0, -e1, e0
         kk_m, kk = self.block(nb)
         inv2 = 1.0 / (rng * rng)
         kk_m[7], kk_m[4], kk_m[5] = inv2, -2.0 * c0 * inv2, -2.0 * c1 * inv2
         kk_m[6] = (c0 * c0 + c1 * c1 - r * r) * inv2
         self.balls(bn, kk)
-        (self.t_seg, self.s_seg), (self.t_ball, self.s_ball) = self.candidates(ns, nb)
+        self.ts_seg, ts_ball = self.candidates(ns, nb)
+        self.s_seg, self.t_ball, self.s_ball = self.ts_seg[1], ts_ball[0], ts_ball[1]
         self.boxes = caster._boxes_meeting(cell_lo, cell_hi)
 
     def solve(self, v: FloatArray) -> list[float]:
         np.matmul(v, self.matrix, out=self.lin)
-        if self.tnum.size:
-            np.divide(self.tnum, self.den, out=self.t_seg)
-            np.divide(self.sn, self.den, out=self.s_seg)
+        if self.den.size:
+            np.divide(self.num, self.den, out=self.ts_seg)
             np.abs(self.s_seg, out=self.s_seg)
         if self.kk.size:
             self.solve_balls(self.t_ball, self.s_ball)
@@ -478,7 +481,13 @@ class _FastCell3(_FastCell):
         for axis in range(3):
             kk_m[1 + axis] = -2.0 * c[:, axis] * inv2
         self.balls(bn, kk)
-        (self.t_box, self.s_box), (self.t_ball, self.s_ball) = self.candidates(nx, nb)
+        ts_box, ts_ball = self.candidates(nx, nb)
+        self.t_box, self.s_box, self.t_ball, self.s_ball = (
+            ts_box[0],
+            ts_box[1],
+            ts_ball[0],
+            ts_ball[1],
+        )
         self.boxes = caster._boxes_meeting(cell_lo, cell_hi)
 
     def solve(self, v: FloatArray) -> list[float]:
