@@ -458,18 +458,18 @@ class _FastCell3(_FastCell):
         close = _gap(c - r[:, None], c + r[:, None], cell_lo, cell_hi) <= rng * 1.000001
         c, r = c[close] - o, r[close]
         k, nx, nb = caster.count, len(lo), len(c)
-        super().__init__(o.tolist(), 5, 2 * k * nx * 3 + k * nb + nb, k)
+        super().__init__(o.tolist(), 5, 6 * k * nx + k * nb + nb, k)
         inv = (caster._inv_dir / rng).T[:, :, None]
         forward = (caster._inv_dir >= 0.0).T[:, :, None]
-        # (axis, ray, slab): entry and exit distances along each axis, reduced by hand over
-        # the three axes (faster than a numpy reduction over a length-3 axis).
-        near_m, near = self.block(3, k, nx)
-        far_m, far = self.block(3, k, nx)
-        near_m[0] = np.where(forward, lo.T[:, None, :], hi.T[:, None, :]) * inv
-        far_m[0] = np.where(forward, hi.T[:, None, :], lo.T[:, None, :]) * inv
+        # (axis, entry or minus exit, ray, slab): reduced by hand over the three axes, entry
+        # and exit at once (faster than a numpy reduction over a length-3 axis).
+        slab_m, slab = self.block(3, 2, k, nx)
+        slab_m[0, :, 0] = np.where(forward, lo.T[:, None, :], hi.T[:, None, :]) * inv
+        slab_m[0, :, 1] = -np.where(forward, hi.T[:, None, :], lo.T[:, None, :]) * inv
         for axis in range(3):
-            near_m[1 + axis, axis] = far_m[1 + axis, axis] = -inv[axis]
-        self.near, self.far = list(near), list(far)
+            slab_m[1 + axis, axis, 0] = -inv[axis]
+            slab_m[1 + axis, axis, 1] = inv[axis]
+        self.slab = list(slab)
         d = caster.directions
         bn_m, bn = self.block(k, nb)
         bn_m[0] = d @ c.T / rng
@@ -481,25 +481,19 @@ class _FastCell3(_FastCell):
         for axis in range(3):
             kk_m[1 + axis] = -2.0 * c[:, axis] * inv2
         self.balls(bn, kk)
-        ts_box, ts_ball = self.candidates(nx, nb)
-        self.t_box, self.s_box, self.t_ball, self.s_ball = (
-            ts_box[0],
-            ts_box[1],
-            ts_ball[0],
-            ts_ball[1],
-        )
+        self.ts_box, ts_ball = self.candidates(nx, nb)
+        self.t_box, self.s_box = self.ts_box[0], self.ts_box[1]
+        self.t_ball, self.s_ball = ts_ball[0], ts_ball[1]
         self.boxes = caster._boxes_meeting(cell_lo, cell_hi)
 
     def solve(self, v: FloatArray) -> list[float]:
         np.matmul(v, self.matrix, out=self.lin)
         if self.t_box.size:
-            (n0, n1, n2), (f0, f1, f2), t, s = self.near, self.far, self.t_box, self.s_box
-            np.maximum(n0, n1, out=t)
-            np.maximum(t, n2, out=t)
+            (x0, x1, x2), ts, t, s = self.slab, self.ts_box, self.t_box, self.s_box
+            np.maximum(x0, x1, out=ts)
+            np.maximum(ts, x2, out=ts)  # t: latest entry, s: minus the earliest exit
             np.maximum(t, 0.0, out=t)
-            np.minimum(f0, f1, out=s)
-            np.minimum(s, f2, out=s)
-            np.subtract(t, s, out=s)
+            np.add(t, s, out=s)  # entry - exit <= 0: the ray meets the box
         if self.kk.size:
             self.solve_balls(self.t_ball, self.s_ball)
         return self.finish()
