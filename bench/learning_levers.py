@@ -69,6 +69,7 @@ class Config:
 BASE_SB3: dict[str, Any] = {"learning_rate": 3e-4, "batch_size": 256, "gamma": 0.99}
 CUR = {"curriculum": 0.7}
 FWD = {**CUR, "min_forward": 0.2}
+X10 = {"crash": -10.0, "goal": 20.0, "progress": 0.5, "step_cost": 0.01}
 
 CONFIGS: dict[str, Config] = {
     c.name: c
@@ -185,6 +186,63 @@ CONFIGS: dict[str, Config] = {
         Config("fwd-td3", "rrt-cur-fwd, TD3", env=FWD, algo="td3"),
         Config("fwd-split5", "rrt-cur-fwd, legs of at most 5 m", env=FWD, split=5.0),
         Config("fwd-rays", "rrt-cur-fwd + 8 rays", env={**FWD, "rays": 8}),
+        Config(
+            "C-td3",
+            "fwd-clear with TD3 (Gaussian action noise 0.2)",
+            env=FWD,
+            extra_clearance=0.3,
+            algo="td3",
+        ),
+        Config(
+            "C-x10-td3",
+            "fwd-clear, rewards x10, TD3 (action noise 0.2)",
+            rewards=X10,
+            env=FWD,
+            extra_clearance=0.3,
+            algo="td3",
+        ),
+        Config(
+            "C-x10",
+            "fwd-clear, rewards x10 (crash -10, goal 20, 0.5/m, step 0.01)",
+            rewards=X10,
+            env=FWD,
+            extra_clearance=0.3,
+        ),
+        Config(
+            "C-ent",
+            "fwd-clear, ent_coef auto from 0.01",
+            env=FWD,
+            extra_clearance=0.3,
+            sb3={"ent_coef": "auto_0.01"},
+        ),
+        Config(
+            "C-x10-ent",
+            "fwd-clear, rewards x10, ent_coef auto from 0.01",
+            rewards=X10,
+            env=FWD,
+            extra_clearance=0.3,
+            sb3={"ent_coef": "auto_0.01"},
+        ),
+        Config(
+            "paper-C",
+            "rrt-paper, lookahead obs, curriculum, min_forward, clearance + 0.3",
+            "rrt-paper",
+            env=FWD,
+            extra_clearance=0.3,
+        ),
+        Config(
+            "x10-clear",
+            "rrt x10, guide at radius + 0.3 m (no curriculum, no min_forward)",
+            rewards=X10,
+            extra_clearance=0.3,
+        ),
+        Config(
+            "x10-clear-cur",
+            "rrt x10 + curriculum, guide at radius + 0.3 m",
+            rewards=X10,
+            env=CUR,
+            extra_clearance=0.3,
+        ),
         Config("clear", "rrt, guide at radius + 0.3 m", extra_clearance=0.3),
         Config(
             "clear-cur", "rrt + curriculum, guide at radius + 0.3 m", env=CUR, extra_clearance=0.3
@@ -295,6 +353,7 @@ def _train_unit(
     from stable_baselines3 import SAC, TD3
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.noise import NormalActionNoise
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     from envs.factory import make_env
@@ -324,6 +383,8 @@ def _train_unit(
     kwargs = {**BASE_SB3, **cfg.sb3}
     policy_kwargs = {"net_arch": [64, 64, 64], "activation_fn": torch.nn.ReLU}
     algo = SAC if cfg.algo == "sac" else TD3
+    if cfg.algo == "td3":
+        kwargs.setdefault("action_noise", NormalActionNoise(np.zeros(2), np.full(2, 0.2)))
     model = algo("MlpPolicy", venv, seed=job.seed, verbose=0, policy_kwargs=policy_kwargs, **kwargs)
     folder = Path(job.out) / f"{cfg.name}-{label}-s{job.seed}"
     model.set_logger(configure(str(folder), ["csv"]))
@@ -354,6 +415,7 @@ def _train_unit(
     t0 = time.perf_counter()
     model.learn(job.steps, callback=Probe())
     wall = time.perf_counter() - t0
+    model.save(folder / "model.zip")
     final = BatchEval(eval_env, job.trials, job.eval_noise, job.eval_heading).run(model, 0)
     trained = int(model.num_timesteps)
     return {
@@ -434,6 +496,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--configs", default="paper,rrt,rrt-cur", help="comma-separated names")
     p.add_argument("--subtasks", default="0,1,2,3", help="comma-separated sub-task indices")
     p.add_argument("--seeds", default="0,1", help="comma-separated seeds")
+    p.add_argument(
+        "--runs", default="", help="explicit sub-task:seed pairs (e.g. 1:0,2:0,0:1) over the grid"
+    )
     p.add_argument("--steps", type=int, default=30_000, help="env-step budget per agent")
     p.add_argument("--eval-every", type=int, default=5_000, help="quick evaluation period")
     p.add_argument("--quick-episodes", type=int, default=20, help="rollouts per quick eval")
@@ -478,10 +543,29 @@ def main(argv: list[str] | None = None) -> None:
             a.eval_heading,
             str(out),
         )
+        for seed in a.seeds.split(",")
         for n in names
         for s in a.subtasks.split(",")
-        for seed in a.seeds.split(",")
     ]
+    if a.runs:
+        pairs = [tuple(int(v) for v in r.split(":")) for r in a.runs.split(",") if r]
+        jobs = [
+            Job(
+                n,
+                sub,
+                seed,
+                a.steps,
+                a.eval_every,
+                a.quick_episodes,
+                a.trials,
+                not a.no_stop,
+                a.eval_noise,
+                a.eval_heading,
+                str(out),
+            )
+            for n in names
+            for sub, seed in pairs
+        ]
     print(HEADER, flush=True)
     rows: list[dict[str, Any]] = []
     if a.jobs <= 1:
