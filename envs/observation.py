@@ -107,8 +107,8 @@ class RayCaster:
     box, polygon and bounds edge is a segment (ray/segment intersection), in 3D boxes and the
     outside of the bounds are slabs; balls solve the quadratic. A ray that starts inside an
     obstacle reads 0 for a box, the exit distance for a polygon and ignores a ball (the robot
-    has crashed then anyway); points outside the open bounds or in a 2D box take the general
-    path (``cast_general``), which defines these cases.
+    has crashed then anyway); points outside the open bounds or in (or on) a box take the
+    general path (``cast_general``), which defines these cases.
     """
 
     def __init__(self, world: World, count: int, max_range: float) -> None:

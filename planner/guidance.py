@@ -27,6 +27,9 @@ from typing import Any
 
 import numpy as np
 
+_floor = math.floor
+_INF = math.inf
+
 
 @dataclass(frozen=True)
 class RewardConstants:
@@ -368,12 +371,11 @@ class ProgressTracker:
             x0, x1 = point[0], point[1]
             o0, o1, inv, s0, s1, rr = self._flat
             i = -1
-            bucket = self._buckets.get(
-                math.floor((x0 - o0) * inv) * s0 + math.floor((x1 - o1) * inv) * s1
-            )
+            bucket = self._buckets.get(_floor((x0 - o0) * inv) * s0 + _floor((x1 - o1) * inv) * s1)
             if bucket is not None:
                 for j, c0, c1 in bucket:
-                    if (x0 - c0) * (x0 - c0) + (x1 - c1) * (x1 - c1) <= rr:
+                    dx, dy = x0 - c0, x1 - c1
+                    if dx * dx + dy * dy <= rr:
                         i = j
                         break
         elif self._dim == 3:
@@ -381,7 +383,7 @@ class ProgressTracker:
         else:
             i = self.guide.locate(point)
         if i < 0:
-            return False, self._index_list[env], math.inf
+            return False, self._index_list[env], _INF
         d = self._dist[i]
         if d < self._d_min_list[env]:
             self._d_min_list[env] = d
