@@ -36,7 +36,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from envs.observation import HEADING_FEATURES, ObservationBuilder, RayCaster
+from envs.observation import HEADING_FEATURES, ObservationBuilder
+from envs.rays import RayCaster
 from envs.rewards import (
     RUNNING,
     SUCCESS,

@@ -20,7 +20,7 @@ from stable_baselines3.common.env_checker import check_env
 
 from envs.factory import ENV_ID, EnvOptions, make_env, split_subtask
 from envs.nav_env import NavEnv
-from envs.observation import RayCaster
+from envs.rays import RayCaster
 from envs.rewards import REWARD_MODES, EnvConfigError
 from envs.robots import RobotConfigError
 from envs.spec import RobotSpec

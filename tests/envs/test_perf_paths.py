@@ -11,7 +11,7 @@ import pickle
 import numpy as np
 import pytest
 
-from envs.observation import RayCaster
+from envs.rays import RayCaster
 from planner.guidance import Guide, ProgressTracker
 from planner.shapes import Ball, Box, Polygon, Shape
 from planner.world import World
