@@ -262,6 +262,22 @@ def _rollout_summary(result: object) -> str:
     )
 
 
+@app.command("migrate")
+def migrate(
+    revision: Annotated[str, typer.Option(help="Target revision.")] = "head",
+) -> None:
+    """Apply the database migrations to the configured database (LTLNAV_DATABASE_URL)."""
+    from sqlalchemy import make_url
+
+    from service.db import current_revision, upgrade
+    from service.settings import Settings
+
+    url = Settings().database_url
+    upgrade(url, revision)
+    shown = make_url(url).render_as_string(hide_password=True)
+    typer.echo(f"database {shown} at revision {current_revision(url)}")
+
+
 def main() -> None:
     """Console-script entry point."""
     try:
