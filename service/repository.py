@@ -154,24 +154,39 @@ def set_status(
 ) -> bool:
     """Move a mission to ``status`` (with ``reason``; required for failed). Returns False when
     it is already there (a redelivered task), raises ``TransitionError`` for a move the life
-    cycle forbids, e.g. out of done/failed/cancelled."""
-    mission = _locked_mission(session, mission_id)
-    if mission.status == status:
-        return False
-    allowed = TRANSITIONS.get(mission.status, frozenset())
-    if mission.status not in FINAL_STATES:
+    cycle forbids, e.g. out of done/failed/cancelled. Atomic on SQLite and PostgreSQL alike:
+    of two workers racing to move the same mission, one wins and the other sees its result."""
+    for _ in range(5):
+        current = session.scalar(select(Mission.status).where(Mission.id == mission_id))
+        if current is None:
+            raise NotFoundError(f"no mission {mission_id}")
+        if current == status:
+            return False
+        _check_transition(mission_id, current, status, reason)
+        # Compare-and-set: a concurrent change of status makes this match no row.
+        outcome = session.execute(
+            update(Mission)
+            .where(Mission.id == mission_id, Mission.status == current)
+            .values(status=status, reason=reason)
+        )
+        if getattr(outcome, "rowcount", 0) == 1:
+            record_event(session, mission_id, "status", {"status": status.value, "reason": reason})
+            return True
+    raise TransitionError(f"mission {mission_id}: its status keeps changing concurrently")
+
+
+def _check_transition(
+    mission_id: str, current: MissionStatus, status: MissionStatus, reason: str | None
+) -> None:
+    allowed = TRANSITIONS.get(current, frozenset())
+    if current not in FINAL_STATES:
         allowed = allowed | {MissionStatus.failed, MissionStatus.cancelled}
     if status not in allowed:
         raise TransitionError(
-            f"mission {mission_id} cannot go from {mission.status.value} to {status.value}"
+            f"mission {mission_id} cannot go from {current.value} to {status.value}"
         )
     if status == MissionStatus.failed and not reason:
         raise TransitionError(f"mission {mission_id}: a failure needs a reason")
-    mission.status = status
-    mission.reason = reason
-    session.flush()
-    record_event(session, mission_id, "status", {"status": status.value, "reason": reason})
-    return True
 
 
 def request_cancel(session: Session, mission_id: str) -> Mission:
@@ -246,11 +261,12 @@ def start_job(session: Session, job_id: int, worker: str) -> Job:
     now = utcnow()
     job.status = JobStatus.running
     job.worker = worker
-    job.attempts += 1
+    job.attempts = Job.attempts + 1  # in SQL: two concurrent starts both count
     job.heartbeat_at = now
     job.started_at = job.started_at or now
     job.finished_at = None
     session.flush()
+    session.refresh(job, ["attempts"])
     record_event(
         session, job.mission_id, "job", {"index": job.index, "status": "running", "worker": worker}
     )

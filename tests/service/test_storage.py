@@ -3,6 +3,7 @@ PostgreSQL, and the repository's round trips on both."""
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from datetime import timedelta
 from pathlib import Path
 
@@ -357,3 +358,33 @@ def test_deleting_a_mission_cascades(database: Database) -> None:
         assert repo.mission_jobs(session, mission_id) == []
         assert repo.latest_checkpoint(session, job0) is None
         assert repo.events_after(session, mission_id) == []
+
+
+def test_concurrent_writers(database: Database) -> None:
+    """Workers and the API write at once: progress from several threads neither fails with a
+    locked database (SQLite WAL + busy timeout) nor loses a row; of racing status changes
+    exactly one wins."""
+    mission_id, jobs = _mission_with_jobs(database, count=4)
+    with database.session() as session:
+        repo.set_status(session, mission_id, MissionStatus.evaluating)
+
+    def write(job_id: int) -> None:
+        for steps in range(1, 11):
+            with database.session() as session:
+                repo.record_progress(session, job_id, steps * 100, success_rate=steps / 10)
+                repo.record_checkpoint(session, job_id, steps * 100, f"/c/{job_id}/{steps}")
+
+    def finish(reason: str) -> bool:
+        with database.session() as session:
+            return repo.set_status(session, mission_id, MissionStatus.failed, reason)
+
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        list(pool.map(write, jobs))
+        outcomes = list(pool.map(finish, ["a", "b", "c", "d"]))
+    assert sorted(outcomes) == [False, False, False, True]
+    with database.session() as session:
+        assert [j.steps_done for j in repo.mission_jobs(session, mission_id)] == [1000] * 4
+        progress = repo.events_after(session, mission_id, limit=1000)
+        assert sum(e.kind == "progress" for e in progress) == 40
+        statuses = [e.payload["status"] for e in progress if e.kind == "status"]
+        assert statuses.count("failed") == 1
