@@ -11,6 +11,7 @@ import os
 import weakref
 from collections.abc import Iterator
 from contextlib import contextmanager
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -109,6 +110,12 @@ class Database:
         self.engine.dispose()
 
 
+@lru_cache(maxsize=1)
+def get_database() -> Database:
+    """The process-wide database of ``get_settings()`` (one engine and pool per process)."""
+    return Database.from_settings()
+
+
 def alembic_config(url: str) -> Any:
     """Alembic configuration for ``url`` that works from any working directory."""
     from alembic.config import Config
@@ -124,6 +131,13 @@ def upgrade(url: str, revision: str = "head") -> None:
     from alembic import command
 
     command.upgrade(alembic_config(url), revision)
+
+
+def downgrade(url: str, revision: str) -> None:
+    """Revert the migrations of ``url`` down to ``revision`` (``base``: an empty database)."""
+    from alembic import command
+
+    command.downgrade(alembic_config(url), revision)
 
 
 def current_revision(url: str) -> str | None:

@@ -82,7 +82,11 @@ def record_event(session: Session, mission_id: str, kind: str, payload: dict[str
 def events_after(
     session: Session, mission_id: str, after_id: int = 0, limit: int = 100
 ) -> list[Event]:
-    """A mission's events with id above ``after_id`` (SSE ``Last-Event-ID``), oldest first."""
+    """A mission's events with id above ``after_id`` (SSE ``Last-Event-ID``), oldest first.
+
+    Ids grow with insertion. On PostgreSQL two transactions committing out of id order can
+    make a reader that already passed an id miss the later-committed lower one; status lives
+    in the mission row too, so a client re-reads the mission on reconnect."""
     query = (
         select(Event)
         .where(Event.mission_id == mission_id, Event.id > after_id)

@@ -38,11 +38,8 @@ def _postgres_reachable() -> bool:
 
 def _start_postgres() -> str:
     """Try to start the local cluster; returns what went wrong ("" on success)."""
-    versions = (
-        sorted(p.name for p in Path("/etc/postgresql").glob("*"))
-        if Path("/etc/postgresql").is_dir()
-        else []
-    )
+    config = Path("/etc/postgresql")
+    versions = sorted(p.name for p in config.iterdir()) if config.is_dir() else []
     if not versions:
         return "no PostgreSQL cluster configured under /etc/postgresql"
     command = ["pg_ctlcluster", "--skip-systemctl-redirect", versions[-1], "main", "start"]
@@ -60,6 +57,9 @@ def _start_postgres() -> str:
 @pytest.fixture(scope="session")
 def postgres_url() -> Iterator[str]:
     """URL of a fresh, uniquely named PostgreSQL database, dropped at the end of the session."""
+    pytest.importorskip(
+        "psycopg", reason="the PostgreSQL driver psycopg is not installed (psycopg[binary])"
+    )
     if not _postgres_reachable():
         problem = _start_postgres()
         if problem:

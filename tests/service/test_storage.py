@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 
 from service import repository as repo
 from service.cli import app
-from service.db import Database, current_revision, make_engine, upgrade
+from service.db import Database, current_revision, downgrade, make_engine, upgrade
 from service.models import Base, Job, JobStatus, MissionStatus, utcnow
 from service.settings import Settings
 
@@ -110,6 +110,12 @@ def test_migrate_sqlite_matches_models(sqlite_url: str) -> None:
     assert mode == "wal"
     upgrade(sqlite_url)  # a second run is a no-op
     assert current_revision(sqlite_url) == "0001"
+    downgrade(sqlite_url, "base")
+    engine = make_engine(sqlite_url)
+    try:
+        assert set(inspect(engine).get_table_names()) <= {"alembic_version"}
+    finally:
+        engine.dispose()
 
 
 def test_migrate_postgres_matches_models(migrated_postgres: str) -> None:
