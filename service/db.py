@@ -13,12 +13,15 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import Engine, create_engine, event, make_url
 from sqlalchemy.orm import Session, sessionmaker
 
 from service.settings import Settings, get_settings, normalise_database_url
+
+if TYPE_CHECKING:
+    from alembic.config import Config
 
 SQLITE_BUSY_TIMEOUT_MS = 30_000
 """How long a SQLite writer waits for the lock before failing."""
@@ -116,7 +119,7 @@ def get_database() -> Database:
     return Database.from_settings()
 
 
-def alembic_config(url: str) -> Any:
+def alembic_config(url: str) -> Config:
     """Alembic configuration for ``url`` that works from any working directory."""
     from alembic.config import Config
 
