@@ -37,13 +37,18 @@ class FormulaError(LtlnavError):
         return f"column {self.column}: {self.reason}\n  {self.formula}\n  {pointer}"
 
 
-class WorldError(LtlnavError):
-    """A world that is malformed or unusable; ``field`` is the dotted path of the culprit."""
+class FieldError(LtlnavError):
+    """Bad input located by ``field``, the dotted path of the culprit within its section; the
+    spec layer prefixes the section to report the full path."""
 
     def __init__(self, field: str, message: str) -> None:
         self.field = field
         self.reason = message
         super().__init__(f"{field}: {message}")
+
+
+class WorldError(FieldError):
+    """A world that is malformed or unusable."""
 
 
 class PlanningError(LtlnavError):

@@ -21,7 +21,7 @@ from typing import Any, ClassVar
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.errors import LtlnavError
+from planner.errors import FieldError
 from planner.shapes import Ball, Box, Shape
 from planner.world import World
 
@@ -29,17 +29,12 @@ FloatArray = NDArray[np.float64]
 Float32Array = NDArray[np.float32]
 
 
-class RobotConfigError(LtlnavError, ValueError):
+class RobotConfigError(FieldError, ValueError):
     """A robot that cannot be built: unknown model or parameter, bad value, wrong world.
 
     ``field`` names the culprit relative to the ``robot:`` section (``model``, ``radius``,
     ``params.max_speed``, ``world``) so the spec layer can turn it into a full field path.
     """
-
-    def __init__(self, field: str, message: str) -> None:
-        self.field = field
-        self.reason = message
-        super().__init__(f"{field}: {message}")
 
 
 @dataclass(frozen=True)
