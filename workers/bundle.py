@@ -29,6 +29,7 @@ from matplotlib.patches import Polygon as PolygonPatch
 from planner.guidance import Guide
 from planner.plan import MissionPlan
 from planner.plot import plot_plan
+from planner.serialize import plan_to_dict
 from planner.shapes import Ball, Box, Polygon
 from planner.world import World
 from workers.evaluation import MissionEvaluation
@@ -43,7 +44,6 @@ from workers.policy import (
     read_bundle,
 )
 from workers.training import TrainResult
-from workers.training_spec import plan_to_dict
 
 __all__ = ["BundleError", "ConcatenatedPolicy", "read_bundle", "write_bundle"]
 

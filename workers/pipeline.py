@@ -21,10 +21,11 @@ from typing import Any
 
 from planner.errors import PlanningError
 from planner.plan import MissionPlan, plan_mission, verify_plan
+from planner.serialize import plan_from_dict, plan_to_dict
 from workers.evaluation import MissionEnv, MissionEvaluation, rollout_mission, stage_policies
 from workers.mission import MissionSpec
 from workers.training import ALGORITHMS, TrainingError, TrainResult, train_subtask
-from workers.training_spec import SubtaskJob, plan_from_dict, plan_to_dict
+from workers.training_spec import SubtaskJob
 
 PipelineProgress = Callable[[int, int, float | None, int], None]
 """``on_progress(subtask, steps, success_rate, total)``, called in the parent process."""

@@ -33,9 +33,10 @@ from stable_baselines3.common.policies import BasePolicy
 
 from planner.errors import LtlnavError
 from planner.plan import MissionPlan
+from planner.serialize import plan_from_dict
 from workers.evaluation import MissionEnv, MissionEvaluation, rollout_mission
 from workers.mission import MissionError, MissionSpec, parse_mission
-from workers.training_spec import ACTIVATIONS, plan_from_dict
+from workers.training_spec import ACTIVATIONS
 
 FORMAT = "ltlnav-bundle"
 FORMAT_VERSION = 1

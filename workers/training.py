@@ -36,6 +36,7 @@ from envs.factory import make_env
 from envs.nav_env import NavEnv
 from planner.errors import LtlnavError
 from planner.plan import MissionPlan
+from planner.serialize import plan_from_dict
 from workers.callbacks import (
     ProgressFn,
     PruneCheckpoints,
@@ -49,7 +50,7 @@ from workers.callbacks import (
 )
 from workers.evaluation import evaluate_subtask
 from workers.mission import MissionSpec, parse_mission
-from workers.training_spec import SubtaskJob, TrainingSpec, plan_from_dict
+from workers.training_spec import SubtaskJob, TrainingSpec
 
 ALGORITHMS: dict[str, type[BaseAlgorithm]] = {"sac": SAC, "td3": TD3, "ddpg": DDPG, "ppo": PPO}
 """stable-baselines3 classes by ``training.algorithm`` name."""

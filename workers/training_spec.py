@@ -16,7 +16,6 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, Literal
 
-import numpy as np
 from pydantic import (
     BaseModel,
     ConfigDict,
@@ -28,12 +27,7 @@ from pydantic import (
 
 from envs.factory import EnvOptions
 from envs.rewards import REWARD_MODES, EnvConfigError, RewardConfig, reward_mode
-from planner.automaton import Buchi, Edge
-from planner.decompose import SubTask
-from planner.guard import Cube, Guard
-from planner.plan import MissionPlan
 from planner.spec import raise_problems
-from planner.tl_rrt_star import Lasso
 
 Algorithm = Literal["sac", "td3", "ddpg", "ppo"]
 RewardModeName = Literal["rrt", "rrt-paper", "g-rrt", "ned", "tl"]
@@ -296,113 +290,3 @@ class SubtaskJob(BaseModel):
     subtask: int = Field(ge=0, description="Index into the plan's sub-tasks.")
     training: TrainingSpec = Field(description="The training section to use.")
     seed: int = Field(ge=0, description="Seed of this job (agent and env resets).")
-
-
-def buchi_to_dict(nba: Buchi) -> dict[str, Any]:
-    """A Büchi automaton as JSON with its guards as cubes (exact round trip)."""
-    return {
-        "atoms": list(nba.atoms),
-        "state_names": list(nba.state_names),
-        "initial": nba.initial,
-        "accepting": sorted(nba.accepting),
-        "edges": [
-            {
-                "source": e.source,
-                "target": e.target,
-                "cubes": [[sorted(c.pos), sorted(c.neg)] for c in e.guard.sorted_cubes()],
-            }
-            for e in nba.edges
-        ],
-    }
-
-
-def buchi_from_dict(doc: dict[str, Any]) -> Buchi:
-    """The inverse of ``buchi_to_dict``."""
-    edges = tuple(
-        Edge(
-            int(e["source"]),
-            Guard(frozenset(Cube(frozenset(p), frozenset(n)) for p, n in e["cubes"])),
-            int(e["target"]),
-        )
-        for e in doc["edges"]
-    )
-    return Buchi(
-        atoms=tuple(doc["atoms"]),
-        state_names=tuple(doc["state_names"]),
-        initial=int(doc["initial"]),
-        accepting=frozenset(int(q) for q in doc["accepting"]),
-        edges=edges,
-    )
-
-
-def plan_to_dict(plan: MissionPlan) -> dict[str, Any]:
-    """Everything of a ``MissionPlan`` as JSON: automata, lasso, sub-tasks, radii (exact floats,
-    so a job rebuilt from it trains on the very same guide)."""
-    lasso = plan.lasso
-    return {
-        "formula": plan.formula,
-        "start": plan.start.tolist(),
-        "nba": buchi_to_dict(plan.nba),
-        "pruned": buchi_to_dict(plan.pruned),
-        "lasso": {
-            "prefix": lasso.prefix.tolist(),
-            "suffix": lasso.suffix.tolist(),
-            "prefix_states": list(lasso.prefix_states),
-            "suffix_states": list(lasso.suffix_states),
-            "prefix_cost": lasso.prefix_cost,
-            "suffix_cost": lasso.suffix_cost,
-            "cost": lasso.cost,
-        },
-        "subtasks": [
-            {
-                "index": s.index,
-                "phase": s.phase,
-                "goal": s.goal,
-                "start": s.start.tolist(),
-                "path": s.path.tolist(),
-                "nba_state": s.nba_state,
-                "next_nba_state": s.next_nba_state,
-            }
-            for s in plan.subtasks
-        ],
-        "eta": plan.eta,
-        "r_ball": plan.r_ball,
-        "seconds": plan.seconds,
-        "translation_seconds": plan.translation_seconds,
-    }
-
-
-def plan_from_dict(doc: dict[str, Any]) -> MissionPlan:
-    """The inverse of ``plan_to_dict`` (KeyError/ValueError/TypeError on a malformed one)."""
-    lasso = doc["lasso"]
-    return MissionPlan(
-        formula=str(doc["formula"]),
-        start=np.asarray(doc["start"], dtype=float),
-        nba=buchi_from_dict(doc["nba"]),
-        pruned=buchi_from_dict(doc["pruned"]),
-        lasso=Lasso(
-            prefix=np.asarray(lasso["prefix"], dtype=float),
-            suffix=np.asarray(lasso["suffix"], dtype=float),
-            prefix_states=[int(q) for q in lasso["prefix_states"]],
-            suffix_states=[int(q) for q in lasso["suffix_states"]],
-            prefix_cost=float(lasso["prefix_cost"]),
-            suffix_cost=float(lasso["suffix_cost"]),
-            cost=float(lasso["cost"]),
-        ),
-        subtasks=[
-            SubTask(
-                index=int(s["index"]),
-                phase=s["phase"],
-                goal=str(s["goal"]),
-                start=np.asarray(s["start"], dtype=float),
-                path=np.asarray(s["path"], dtype=float),
-                nba_state=int(s["nba_state"]),
-                next_nba_state=int(s["next_nba_state"]),
-            )
-            for s in doc["subtasks"]
-        ],
-        eta=float(doc["eta"]),
-        r_ball=float(doc["r_ball"]),
-        seconds=float(doc["seconds"]),
-        translation_seconds=float(doc["translation_seconds"]),
-    )

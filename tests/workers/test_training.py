@@ -13,10 +13,11 @@ import pytest
 from stable_baselines3 import SAC
 
 from planner.plan import MissionPlan, plan_mission
+from planner.serialize import plan_from_dict, plan_to_dict
 from workers.callbacks import ResumableEvalCallback, StopOnSuccessRate
 from workers.mission import MissionError, MissionSpec, parse_mission
 from workers.training import TrainingError, subtask_env, train_subtask
-from workers.training_spec import SubtaskJob, TrainingSpec, plan_from_dict, plan_to_dict
+from workers.training_spec import SubtaskJob, TrainingSpec
 
 TINY: dict[str, Any] = {
     "name": "tiny-gf2",
