@@ -186,6 +186,14 @@ CONFIGS: dict[str, Config] = {
         Config("fwd-td3", "rrt-cur-fwd, TD3", env=FWD, algo="td3"),
         Config("fwd-split5", "rrt-cur-fwd, legs of at most 5 m", env=FWD, split=5.0),
         Config("fwd-rays", "rrt-cur-fwd + 8 rays", env={**FWD, "rays": 8}),
+        Config("C-x10-hug", "C-x10 on the guide planned at the robot radius", rewards=X10, env=FWD),
+        Config(
+            "C-x10-nocur",
+            "C-x10 without the curriculum",
+            rewards=X10,
+            env={"min_forward": 0.2},
+            extra_clearance=0.3,
+        ),
         Config(
             "C-td3",
             "fwd-clear with TD3 (Gaussian action noise 0.2)",
@@ -288,6 +296,7 @@ class Job:
     quick_episodes: int
     trials: int
     stop_at_target: bool
+    stop_success: float
     eval_noise: float
     eval_heading: float
     out: str
@@ -409,8 +418,7 @@ def _train_unit(
             )
             if r["success"] >= 0.95 and not first:
                 first.append(self.num_timesteps)
-                return not job.stop_at_target
-            return True
+            return not (job.stop_at_target and r["success"] >= job.stop_success)
 
     t0 = time.perf_counter()
     model.learn(job.steps, callback=Probe())
@@ -503,6 +511,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--eval-every", type=int, default=5_000, help="quick evaluation period")
     p.add_argument("--quick-episodes", type=int, default=20, help="rollouts per quick eval")
     p.add_argument("--trials", type=int, default=200, help="rollouts of the final evaluation")
+    p.add_argument(
+        "--stop-success", type=float, default=0.95, help="quick-eval success that stops training"
+    )
     p.add_argument("--no-stop", action="store_true", help="train the whole budget")
     p.add_argument("--eval-noise", type=float, default=0.2, help="start perturbation (m)")
     p.add_argument("--eval-heading", type=float, default=0.4, help="heading perturbation (rad)")
@@ -539,6 +550,7 @@ def main(argv: list[str] | None = None) -> None:
             a.quick_episodes,
             a.trials,
             not a.no_stop,
+            a.stop_success,
             a.eval_noise,
             a.eval_heading,
             str(out),
@@ -559,6 +571,7 @@ def main(argv: list[str] | None = None) -> None:
                 a.quick_episodes,
                 a.trials,
                 not a.no_stop,
+                a.stop_success,
                 a.eval_noise,
                 a.eval_heading,
                 str(out),
