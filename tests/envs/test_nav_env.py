@@ -219,7 +219,7 @@ def test_step_limit_truncates_without_success(envs: list[NavEnv]) -> None:
     assert len(steps) == 7
     r, terminated, truncated, info = steps[-1]
     assert truncated and not terminated and info["is_success"] is False
-    assert r == pytest.approx(-0.001)
+    assert r == pytest.approx(-0.01)
 
 
 def test_default_step_limit_is_three_times_the_guide_time() -> None:
@@ -243,7 +243,7 @@ def test_stall_ends_the_episode(envs: list[NavEnv], penalty: float | None) -> No
     r, terminated, truncated, info = steps[-1]
     assert info["stalled"] and info["is_success"] is False
     if penalty is None:
-        assert truncated and not terminated and r == pytest.approx(-0.001)
+        assert truncated and not terminated and r == pytest.approx(-0.01)
     else:
         assert terminated and not truncated and r == penalty
 
@@ -543,6 +543,6 @@ def test_split_subtask_into_shorter_legs(envs: list[NavEnv]) -> None:
     end = pieces[0].path[-1]
     env.reset(seed=0, options={"position": end - 0.05 * (end - pieces[0].path[-2])})
     _, reward, terminated, _, info = env.step(np.zeros(2))
-    assert terminated and info["is_success"] is True and reward == 2.0 and info["d"] == 0.0
+    assert terminated and info["is_success"] is True and reward == 20.0 and info["d"] == 0.0
     with pytest.raises(EnvConfigError, match="max_length"):
         split_subtask(sub, 0.0)

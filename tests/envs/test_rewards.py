@@ -35,9 +35,9 @@ def test_paper_reward_is_exactly_the_papers() -> None:
 
 def test_scaled_reward_pays_metres_gained_minus_a_step_cost() -> None:
     mode = reward_mode("rrt")
-    assert (mode.crash, mode.goal) == (-1.0, 2.0)
-    assert mode.step_reward(True, 1.0, [0.0, 0.0]) == pytest.approx(0.05 - 0.001)
-    assert mode.step_reward(False, 0.0, [0.0, 0.0]) == pytest.approx(-0.001)
+    assert (mode.crash, mode.goal) == (-10.0, 20.0)
+    assert mode.step_reward(True, 1.0, [0.0, 0.0]) == pytest.approx(0.5 - 0.01)
+    assert mode.step_reward(False, 0.0, [0.0, 0.0]) == pytest.approx(-0.01)
     tuned = reward_mode("rrt", RewardConfig(progress=0.1, step_cost=0.0))
     assert tuned.step_reward(True, 0.5, [0.0, 0.0]) == pytest.approx(0.05)
     # Parking never beats crashing: the discounted cost of standing still stays far above R-.

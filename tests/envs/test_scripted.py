@@ -140,12 +140,12 @@ def test_unicycle_drives_the_whole_mission_handing_the_robot_over() -> None:
         for k, env in enumerate(chain):
             env.reset(seed=0, options={"keep_robot": True} if k else None)
             rewards, info = drive(env, env.legs[0].subtask.path)
-            assert info["is_success"] is True and rewards[-1] == 2.0, f"sub-task {k}: {info}"
+            assert info["is_success"] is True and rewards[-1] == 20.0, f"sub-task {k}: {info}"
             assert env.legs[0].subtask.goal in world.labels(env.robot.position())
-            gained = sum(rewards[:-1]) + 0.001 * (len(rewards) - 1)
-            # 0.05 per metre of guide, up to the ball where the goal region was entered.
+            gained = sum(rewards[:-1]) + 0.01 * (len(rewards) - 1)
+            # 0.5 per metre of guide, up to the ball where the goal region was entered.
             progress = env.legs[0].guide.length - info["distance_to_go"]
-            assert gained == pytest.approx(0.05 * progress, abs=1e-9) and gained > 0
+            assert gained == pytest.approx(0.5 * progress, abs=1e-9) and gained > 0
     finally:
         for env in chain:
             env.close()
@@ -175,7 +175,7 @@ def test_g_rrt_drives_the_whole_lasso_stage_by_stage() -> None:
         stages.append(info["stage"])
         if terminated or truncated:
             break
-    assert info["is_success"] is True and rewards[-1] == 2.0
+    assert info["is_success"] is True and rewards[-1] == 20.0
     assert stages == sorted(stages) and stages[-1] == len(plan.subtasks) - 1
     assert sum(r > 0 for r in rewards[:-1]) > 10
     assert info["progress_index"] >= env.num_balls - env.legs[-1].guide.num_balls
