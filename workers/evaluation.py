@@ -90,7 +90,7 @@ def stage_sequence(plan: MissionPlan, cycles: int) -> list[int]:
 class MissionEnv(gym.Env[np.ndarray, np.ndarray]):
     """The whole mission as one episode: sub-task envs sharing one robot, switched in place.
 
-    ``options`` are the sub-task envs' options (``TrainingSpec.eval_env_options()``).
+    ``options`` are the sub-task envs' options (``TrainingSpec.eval_env_options(model)``).
     Observation: the current sub-task env's observation, then the stage number (position in
     ``stage_sequence``). Ends on a collision (``failure = "collision"``), a sub-task running out
     of steps (``"timeout"``) or after the last stage; then ``info`` holds ``accepted`` (the

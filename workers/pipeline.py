@@ -162,7 +162,7 @@ def evaluate_results(
     cls = ALGORITHMS[training.algorithm]
     models = [cls.load(r.model_path, device="cpu") for r in results]
     policies = [(lambda obs, m=m: m.predict(obs, deterministic=True)[0]) for m in models]
-    env = MissionEnv(mission, plan, training.eval_env_options(), training.cycles)
+    env = MissionEnv(mission, plan, training.eval_env_options(mission.robot.model), training.cycles)
     try:
         act = stage_policies(env.sequence, policies)
         return rollout_mission(act, env, training.mission_episodes, seed=training.seed + 7)

@@ -252,7 +252,7 @@ class ConcatenatedPolicy:
 
     def make_env(self, cycles: int | None = None) -> MissionEnv:
         """The mission env this policy acts in (``cycles`` suffix cycles, default the bundle's)."""
-        options = self.mission.training.eval_env_options()
+        options = self.mission.training.eval_env_options(self.mission.robot.model)
         return MissionEnv(self.mission, self.plan, options, cycles or self.cycles)
 
     def subtask_of(self, stage: int) -> int:

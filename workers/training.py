@@ -115,7 +115,8 @@ def subtask_env(
     ``TrainingSpec.eval_env_options``);
     ``g-rrt`` drives the whole lasso whatever ``subtask``."""
     mode = training.reward.mode
-    options = training.eval_env_options() if evaluation else training.env_options()
+    model = mission.robot.model
+    options = training.eval_env_options(model) if evaluation else training.env_options(model)
     target = None if mode == "g-rrt" else plan.subtasks[subtask]
     return make_env(mission, target, mode, world=mission.build_world(), plan=plan, options=options)
 

@@ -60,7 +60,9 @@ def trained(
         for k in range(len(plan.subtasks))
     ]
     models = [SAC.load(r.model_path, device="cpu") for r in results]
-    env = MissionEnv(mission, plan, mission.training.eval_env_options(), cycles=1)
+    env = MissionEnv(
+        mission, plan, mission.training.eval_env_options(mission.robot.model), cycles=1
+    )
     act = stage_policies(env.sequence, [deterministic(m) for m in models])
     evaluation = rollout_mission(act, env, episodes=1)
     env.close()
@@ -281,7 +283,7 @@ def test_policies_of_other_algorithms_are_rebuilt_without_unpickling(
         curve=[],
         evaluation=None,
     )
-    env = MissionEnv(mission, plan, training.eval_env_options(), cycles=1)
+    env = MissionEnv(mission, plan, training.eval_env_options(mission.robot.model), cycles=1)
     policy = build_policy(entry, blob, env)
     model = (PPO if algorithm == "ppo" else TD3).load(result.model_path, device="cpu")
     obs, _ = env.envs[1].reset(seed=0)

@@ -73,7 +73,9 @@ def test_subtask_evaluation_counts_successes_collisions_and_timeouts(
 def test_mission_rollout_of_a_good_policy_is_accepted(
     mission: MissionSpec, plan: MissionPlan
 ) -> None:
-    env = MissionEnv(mission, plan, mission.training.eval_env_options(), cycles=2)
+    env = MissionEnv(
+        mission, plan, mission.training.eval_env_options(mission.robot.model), cycles=2
+    )
     assert env.sequence == stage_sequence(plan, 2)
     assert len(env.sequence) == 2 + 2 * 2  # prefix a, b; suffix (a, b) twice
     act = follower(lambda: env.envs[env.sequence[env.stage]])
@@ -92,7 +94,9 @@ def test_mission_rollout_of_a_good_policy_is_accepted(
 def test_mission_failures_are_located_by_subtask_and_kind(
     mission: MissionSpec, plan: MissionPlan
 ) -> None:
-    env = MissionEnv(mission, plan, mission.training.eval_env_options(), cycles=1)
+    env = MissionEnv(
+        mission, plan, mission.training.eval_env_options(mission.robot.model), cycles=1
+    )
     parked = rollout_mission(lambda o: np.zeros(2, dtype=np.float32), env, episodes=2)
     assert parked.timeout_rate == 1.0 and parked.failures == {"0": {"timeout": 2}}
     assert parked.to_json()["failures"] == {"0": {"timeout": 2}}
@@ -121,7 +125,21 @@ def test_stage_policies_pick_the_stage_sub_policy() -> None:
 
 def test_evaluation_options_start_at_the_real_start_with_noise() -> None:
     spec = tiny_mission(env={"curriculum": 0.7, "stall_steps": 30}, eval_start_noise=0.1)
-    options = spec.training.eval_env_options()
+    options = spec.training.eval_env_options(spec.robot.model)
     assert (options.curriculum, options.stall_steps, options.start_noise) == (0.0, 0, 0.1)
     assert options.heading_noise == 0.4
-    assert spec.training.env_options().curriculum == 0.7
+    assert spec.training.env_options(spec.robot.model).curriculum == 0.7
+
+
+def test_measured_training_defaults_apply_by_robot_and_yield_to_the_mission() -> None:
+    training = tiny_mission().training
+    car, point = training.env_options("unicycle"), training.env_options("point")
+    assert (car.curriculum, car.min_forward) == (0.7, 0.2)
+    assert (point.curriculum, point.min_forward) == (0.7, None)
+    evaluated = training.eval_env_options("unicycle")
+    assert (evaluated.curriculum, evaluated.min_forward) == (0.0, 0.2)  # same action meaning
+    chosen = tiny_mission(env={"curriculum": 0.0, "min_forward": None}).training
+    assert (
+        chosen.env_options("unicycle").curriculum,
+        chosen.env_options("unicycle").min_forward,
+    ) == (0.0, None)
