@@ -36,7 +36,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from planner.automaton import Buchi
-from planner.errors import LtlnavError
+from planner.errors import FieldError
 from planner.shapes import Ball, Box, Shape
 
 RUNNING = 0
@@ -47,14 +47,9 @@ VIOLATION = 2
 """Judge outcome: the automaton rejects the labels seen (``R-``, terminated, no success)."""
 
 
-class EnvConfigError(LtlnavError, ValueError):
+class EnvConfigError(FieldError, ValueError):
     """An env that cannot be built as asked: bad option, unknown reward mode, missing plan, a
     start of the wrong dimension... ``field`` names the culprit (``reward``, ``options.rays``)."""
-
-    def __init__(self, field: str, message: str) -> None:
-        self.field = field
-        self.reason = message
-        super().__init__(f"{field}: {message}")
 
 
 @dataclass(frozen=True)
