@@ -23,7 +23,7 @@ from workers.mission import MissionSpec
 from workers.training import TrainResult, train_subtask
 from workers.training_spec import SubtaskJob
 
-from .test_training import tiny_mission
+from .missions import tiny_mission
 
 
 def deterministic(model: SAC) -> Callable[[np.ndarray], np.ndarray]:

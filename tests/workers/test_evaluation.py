@@ -6,10 +6,9 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-import pytest
 
 from envs.nav_env import NavEnv
-from planner.plan import MissionPlan, plan_mission
+from planner.plan import MissionPlan
 from workers.evaluation import (
     MissionEnv,
     evaluate_subtask,
@@ -19,20 +18,7 @@ from workers.evaluation import (
 )
 from workers.mission import MissionSpec
 
-from .test_training import tiny_mission
-
-
-@pytest.fixture(scope="module")
-def mission() -> MissionSpec:
-    return tiny_mission()
-
-
-@pytest.fixture(scope="module")
-def plan(mission: MissionSpec) -> MissionPlan:
-    world = mission.build_world()
-    return plan_mission(
-        world, mission.task, mission.robot.position(), mission.robot.radius, mission.planner
-    )
+from .missions import tiny_mission
 
 
 def follower(env: Callable[[], NavEnv]) -> Callable[[np.ndarray], np.ndarray]:

@@ -3,7 +3,6 @@ training section's validation and the plan document that jobs carry."""
 
 from __future__ import annotations
 
-import copy
 import json
 from pathlib import Path
 from typing import Any
@@ -12,60 +11,14 @@ import numpy as np
 import pytest
 from stable_baselines3 import SAC
 
-from planner.plan import MissionPlan, plan_mission
+from planner.plan import MissionPlan
 from planner.serialize import plan_from_dict, plan_to_dict
 from workers.callbacks import ResumableEvalCallback, StopOnSuccessRate
-from workers.mission import MissionError, MissionSpec, parse_mission
+from workers.mission import MissionError, MissionSpec
 from workers.training import TrainingError, subtask_env, train_subtask
 from workers.training_spec import SubtaskJob, TrainingSpec
 
-TINY: dict[str, Any] = {
-    "name": "tiny-gf2",
-    "task": "[]!obstacle && []<>a && []<>b",
-    "robot": {"model": "point", "start": [0.5, 0.5], "radius": 0.05},
-    "planner": {"seed": 1, "refine_iterations": 300},
-    "world": {
-        "bounds": [[0, 4], [0, 4]],
-        "obstacles": [{"box": {"min": [2.6, 2.6], "max": [3.4, 3.4]}}],
-        "regions": {
-            "a": {"ball": {"center": [3.4, 0.6], "radius": 0.3}},
-            "b": {"box": {"min": [0.2, 3.2], "max": [0.8, 3.8]}},
-        },
-    },
-    "training": {
-        "n_timesteps": 200,
-        "eval_freq": 100,
-        "eval_episodes": 1,
-        "final_eval_episodes": 2,
-        "mission_episodes": 2,
-        "hyperparams": {
-            "policy_kwargs": {"net_arch": [8]},
-            "learning_starts": 50,
-            "batch_size": 16,
-            "buffer_size": 5000,
-        },
-    },
-}
-"""A 4 x 4 m world, a point robot and GF a & GF b: four short sub-tasks, net_arch [8]."""
-
-
-def tiny_mission(**training: Any) -> MissionSpec:
-    data = copy.deepcopy(TINY)
-    data["training"].update(training)
-    return parse_mission(data)
-
-
-@pytest.fixture(scope="module")
-def mission() -> MissionSpec:
-    return tiny_mission()
-
-
-@pytest.fixture(scope="module")
-def plan(mission: MissionSpec) -> MissionPlan:
-    world = mission.build_world()
-    return plan_mission(
-        world, mission.task, mission.robot.position(), mission.robot.radius, mission.planner
-    )
+from .missions import tiny_mission
 
 
 def job(mission: MissionSpec, plan: MissionPlan, subtask: int = 0, **training: Any) -> SubtaskJob:
