@@ -18,14 +18,13 @@ import numpy as np
 
 from planner.automaton import Buchi
 from planner.decompose import SubTask, decompose
-from planner.errors import PlanningError
 from planner.guard import Cube
 from planner.ltl import check_mission_formula, parse
 from planner.ltl_semantics import holds_on_lasso
 from planner.options import PlannerSpec
 from planner.prune import has_accepting_run, prune
 from planner.reachability import restrict_to_reachable
-from planner.tl_rrt_star import Lasso, default_eta, plan_lasso
+from planner.tl_rrt_star import Lasso, default_eta, plan_lasso, unsatisfiable
 from planner.translate import translate
 from planner.world import World
 
@@ -94,15 +93,7 @@ def translate_task(task: str, world: World, clearance: float) -> tuple[Buchi, Bu
 
     pruned = prune(nba, realisable)
     if not has_accepting_run(pruned):
-        if not has_accepting_run(nba):
-            why = "the formula itself has no satisfying behaviour (it is a contradiction)"
-        else:
-            why = (
-                "every accepting run of its automaton needs labels that no collision-free "
-                "point of this world carries together (e.g. two disjoint regions at once, "
-                "being inside an obstacle, or a region the robot cannot fit in)"
-            )
-        raise PlanningError(f"the task is unsatisfiable in this world: {why}")
+        raise unsatisfiable(has_accepting_run(nba))
     return nba, pruned
 
 

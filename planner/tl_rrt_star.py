@@ -196,15 +196,7 @@ class _Planner:
         self.paths = Realisable(nba, world, clearance)
         self.acc_dist = self.paths.acceptance_distances()
         if nba.initial not in self.acc_dist:
-            if nba.initial not in nba.distances_to_acceptance():
-                why = "its automaton has no accepting run (the formula is a contradiction)"
-            else:
-                why = (
-                    "every accepting run of its automaton needs labels that no collision-free "
-                    "point of this world carries together (e.g. two disjoint regions at once, "
-                    "being inside an obstacle, or a region the robot cannot fit in)"
-                )
-            raise PlanningError(f"the task is unsatisfiable in this world: {why}")
+            raise unsatisfiable(nba.initial in nba.distances_to_acceptance())
         if len(self.start) != world.dim:
             raise PlanningError(f"the start {self.start.tolist()} is not a {world.dim}D point")
         if world.in_collision(self.start[None, :], clearance)[0]:
@@ -428,6 +420,20 @@ def make_lasso(
         suffix_cost=sc,
         cost=prefix_weight * pc + (1.0 - prefix_weight) * sc,
     )
+
+
+def unsatisfiable(formula_has_run: bool) -> PlanningError:
+    """The error of a task with no accepting run in this world; ``formula_has_run`` tells whether
+    the formula's own automaton has one (the world is to blame) or not (a contradiction)."""
+    if not formula_has_run:
+        why = "the formula itself has no satisfying behaviour (it is a contradiction)"
+    else:
+        why = (
+            "every accepting run of its automaton needs labels that no collision-free "
+            "point of this world carries together (e.g. two disjoint regions at once, "
+            "being inside an obstacle, or a region the robot cannot fit in)"
+        )
+    return PlanningError(f"the task is unsatisfiable in this world: {why}")
 
 
 def plan_lasso(
