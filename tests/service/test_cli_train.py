@@ -11,7 +11,7 @@ import yaml
 from typer.testing import CliRunner
 
 from service.cli import EXIT_BAD_INPUT, app
-from tests.workers.test_training import TINY
+from tests.workers.missions import TINY
 
 runner = CliRunner()
 
