@@ -48,6 +48,17 @@ class SubtaskEvaluation:
         return asdict(self)
 
 
+def run_episode(act: Act, env: gym.Env[Any, Any], obs: Any) -> tuple[dict[str, Any], int]:
+    """Step ``env`` with ``act`` from ``obs`` (just reset) to the end of the episode; the last
+    step's info and the number of steps."""
+    steps = 0
+    while True:
+        obs, _, terminated, truncated, info = env.step(act(obs))
+        steps += 1
+        if terminated or truncated:
+            return info, steps
+
+
 def evaluate_subtask(
     act: Act, env: gym.Env[Any, Any], episodes: int, seed: int
 ) -> SubtaskEvaluation:
@@ -58,12 +69,7 @@ def evaluate_subtask(
     for episode in range(episodes):
         if episode:
             obs, _ = env.reset()
-        steps = 0
-        while True:
-            obs, _, terminated, truncated, info = env.step(act(obs))
-            steps += 1
-            if terminated or truncated:
-                break
+        info, steps = run_episode(act, env, obs)
         if info.get("is_success"):
             successes += 1
             goal_steps.append(steps)
@@ -259,12 +265,7 @@ def rollout_mission(
         obs, _ = env.reset(seed=seed if episode == 0 else None)
         if reset is not None:
             reset(obs)
-        steps = 0
-        while True:
-            obs, _, terminated, truncated, info = env.step(act(obs))
-            steps += 1
-            if terminated or truncated:
-                break
+        info, steps = run_episode(act, env, obs)
         if episode < keep_trails:
             trails.append([list(p) for p in env.trail])
         if info["is_success"]:
