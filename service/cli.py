@@ -6,7 +6,7 @@ import json
 import sys
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import numpy as np
 import typer
@@ -101,15 +101,19 @@ def plan(
         raise typer.Exit(1)
     _print_summary(result)
     if json_out is not None:
-        json_out.parent.mkdir(parents=True, exist_ok=True)
-        json_out.write_text(json.dumps(result.to_json(), indent=1))
-        typer.echo(f"plan written to {json_out}")
+        _write_json(json_out, result.to_json(), "plan")
     if plot_out is not None:
         from planner.plot import plot_plan
 
         plot_out.parent.mkdir(parents=True, exist_ok=True)
         plot_plan(world, result, plot_out, title=spec.name)
         typer.echo(f"picture written to {plot_out}")
+
+
+def _write_json(path: Path, document: dict[str, Any], what: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(document, indent=1))
+    typer.echo(f"{what} written to {path}")
 
 
 def _print_summary(result: object) -> None:
@@ -240,9 +244,7 @@ def rollout(
     for where, kinds in sorted(result.failures.items()):
         typer.echo(f"  failures at sub-task {where}: {kinds}")
     if json_out is not None:
-        json_out.parent.mkdir(parents=True, exist_ok=True)
-        json_out.write_text(json.dumps(result.to_json(), indent=1))
-        typer.echo(f"results written to {json_out}")
+        _write_json(json_out, result.to_json(), "results")
     if plot_out is not None:
         plot_out.parent.mkdir(parents=True, exist_ok=True)
         plot_rollouts(policy.mission.build_world(), policy.plan, result, plot_out)
