@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed-stamp
 EXAMPLE ?= examples/car-phi2-fin.yaml
 DATA_DIR ?= var
 
-.PHONY: install run test lint typecheck unit spin bench clean
+.PHONY: install run test lint typecheck unit spin browser bench clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -25,6 +25,14 @@ spin:
 	      || echo "warning: could not install spin; the spin comparison tests will skip"; \
 	  else echo "warning: spin missing and not root; the spin comparison tests will skip"; fi; }
 
+# Debian's Chromium drives the dashboard test (Playwright never downloads a browser here).
+browser:
+	@command -v chromium >/dev/null 2>&1 || { \
+	  if [ "$$(id -u)" = 0 ]; then \
+	    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver >/dev/null) \
+	      || echo "warning: could not install chromium; the dashboard browser test will skip"; \
+	  else echo "warning: chromium missing and not root; the dashboard browser test will skip"; fi; }
+
 run: install
 	mkdir -p $(DATA_DIR)
 	$(BIN)/ltlnav plan $(EXAMPLE) --json $(DATA_DIR)/plan.json --plot $(DATA_DIR)/plan.png
@@ -36,7 +44,7 @@ lint: install
 typecheck: install
 	$(BIN)/mypy
 
-unit: install spin
+unit: install spin browser
 	$(BIN)/pytest -q
 
 test: lint typecheck unit

@@ -65,6 +65,12 @@ class Settings(BaseSettings):
     """Where checkpoints, curves, pictures and bundles go (their paths are stored in the
     database). Workers on several machines must share it. Default ``<data_dir>/artifacts``."""
 
+    host: str = "127.0.0.1"
+    """Address ``ltlnav serve`` binds (``0.0.0.0`` to listen on every interface)."""
+
+    port: int = Field(default=8000, ge=1, le=65535)
+    """Port ``ltlnav serve`` listens on."""
+
     max_body_bytes: int = Field(default=1_000_000, gt=0)
     """Largest accepted request body; larger ones get 413."""
 
