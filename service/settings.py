@@ -65,6 +65,9 @@ class Settings(BaseSettings):
     """Where checkpoints, curves, pictures and bundles go (their paths are stored in the
     database). Workers on several machines must share it. Default ``<data_dir>/artifacts``."""
 
+    examples_dir: Path = Path(__file__).resolve().parents[1] / "examples"
+    """Mission files offered by ``GET /examples`` and ``{"example": name}`` (file stem)."""
+
     host: str = "127.0.0.1"
     """Address ``ltlnav serve`` binds (``0.0.0.0`` to listen on every interface)."""
 
@@ -80,7 +83,7 @@ class Settings(BaseSettings):
     stale_after_seconds: float = Field(default=60.0, gt=0)
     """A running job whose heartbeat is older than this is taken for dead and re-enqueued."""
 
-    @field_validator("data_dir", "artifact_dir")
+    @field_validator("data_dir", "artifact_dir", "examples_dir")
     @classmethod
     def _absolute(cls, value: Path) -> Path:
         return value.expanduser().absolute()
