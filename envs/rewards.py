@@ -318,11 +318,12 @@ class GlobalReward(ScaledReward):
 
 
 class DistanceReward(RewardMode):
-    """``ned``: ``R-`` = -1, ``R++`` = +2, else ``-0.0005 * dist(x, goal region)`` per step
-    (at 10 m that is -0.005 a step, about -0.5 over a 0.99-discounted horizon)."""
+    """``ned``: ``R-`` = -10, ``R++`` = +20, else ``-0.005 * dist(x, goal region)`` per step
+    (at 10 m that is -0.05 a step, about -5 over a 0.99-discounted horizon). The terminal
+    values match ``rrt``'s so the baselines differ from it only in the step reward."""
 
     name = "ned"
-    defaults: ClassVar[dict[str, float]] = {"crash": -1.0, "goal": 2.0, "distance": 0.0005}
+    defaults: ClassVar[dict[str, float]] = {"crash": -10.0, "goal": 20.0, "distance": 0.005}
 
     def __init__(self, config: RewardConfig) -> None:
         super().__init__(config)
@@ -335,12 +336,12 @@ class DistanceReward(RewardMode):
 
 
 class AutomatonReward(RewardMode):
-    """``tl``: sparse: ``R++`` = +2 when the automaton makes the sub-task's transition
-    ``nba_state -> next_nba_state`` (accepting progress), ``R-`` = -1 on a crash or when the
-    labels violate the specification, else 0."""
+    """``tl``: sparse: ``R++`` = +20 when the automaton makes the sub-task's transition
+    ``nba_state -> next_nba_state`` (accepting progress), ``R-`` = -10 on a crash or when the
+    labels violate the specification, else 0 (terminal values as ``rrt``'s)."""
 
     name = "tl"
-    defaults: ClassVar[dict[str, float]] = {"crash": -1.0, "goal": 2.0}
+    defaults: ClassVar[dict[str, float]] = {"crash": -10.0, "goal": 20.0}
     automaton = True
 
     def step_reward(self, improved: bool, gain: float, x: Sequence[float]) -> float:

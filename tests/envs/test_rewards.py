@@ -48,10 +48,10 @@ def test_scaled_reward_pays_metres_gained_minus_a_step_cost() -> None:
 def test_ned_reward_is_the_scaled_distance_to_the_goal_region() -> None:
     mode = reward_mode("ned")
     mode.bind_goal(RegionTest(Ball(np.array([5.0, 0.0]), 1.0)), [5.0, 0.0])
-    assert mode.step_reward(False, 0.0, [0.0, 0.0]) == pytest.approx(-0.0005 * 4.0)
+    assert mode.step_reward(False, 0.0, [0.0, 0.0]) == pytest.approx(-0.005 * 4.0)
     assert mode.step_reward(True, 1.0, [5.5, 0.0]) == 0.0
     mode.bind_goal(None, [3.0, 4.0])
-    assert mode.step_reward(False, 0.0, [0.0, 0.0]) == pytest.approx(-0.0005 * 5.0)
+    assert mode.step_reward(False, 0.0, [0.0, 0.0]) == pytest.approx(-0.005 * 5.0)
     assert reward_mode("tl").step_reward(True, 3.0, [0.0, 0.0]) == 0.0
 
 
@@ -125,7 +125,7 @@ def test_tl_env_ends_on_a_specification_violation() -> None:
     env = make_env(mission("point", 2), plan.subtasks[0], "tl", world=world, plan=plan)
     env.reset(seed=0, options={"position": [1.75, 8.75]})  # inside g2
     _, reward, terminated, truncated, info = env.step(np.zeros(2))
-    assert terminated and not truncated and reward == -1.0
+    assert terminated and not truncated and reward == -10.0
     assert info["violation"] and not info["collision"] and info["is_success"] is False
 
 
@@ -136,4 +136,4 @@ def test_ned_env_pays_the_distance_to_the_goal_region() -> None:
     env.reset(seed=0)
     _, reward, _, _, _ = env.step(np.zeros(2))
     expected = float(world.regions[sub.goal].distance(env.robot.position()[None])[0])
-    assert reward == pytest.approx(-0.0005 * expected)
+    assert reward == pytest.approx(-0.005 * expected)

@@ -157,7 +157,7 @@ def test_tl_rewards_only_the_automaton_transition() -> None:
     env = make_env(mission("point", 2), sub, "tl", world=world, plan=plan)
     env.reset(seed=0)
     rewards, info = drive(env, sub.path)
-    assert info["is_success"] is True and rewards[-1] == 2.0
+    assert info["is_success"] is True and rewards[-1] == 20.0
     assert set(rewards[:-1]) == {0.0}
     assert sub.goal in world.labels(env.robot.position())
 
