@@ -1,0 +1,109 @@
+"""The FastAPI application: ``create_app(settings, enqueue)``; ``app`` for uvicorn
+(``uvicorn service.api.app:app``, built on first access from the environment's settings)."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from typing import Any
+
+from fastapi import FastAPI
+from fastapi.openapi.utils import get_openapi
+from fastapi.staticfiles import StaticFiles
+from pydantic.json_schema import models_json_schema
+
+from service.api import events, missions, system
+from service.api.body_limit import BodyLimit
+from service.api.errors import install_handlers
+from service.api.schemas import ExampleRequest
+from service.api.state import Enqueue, Services
+from service.db import Database
+from service.settings import Settings, get_settings
+from workers.mission import MissionSpec
+
+log = logging.getLogger("ltlnav.api")
+
+OPEN_API_WARNING = (
+    "no API keys configured (LTLNAV_API_KEYS): the API is open, anyone who can reach it "
+    "can submit and read missions"
+)
+
+
+def default_enqueue(settings: Settings) -> Enqueue:
+    """Enqueue through Celery (``workers.tasks.enqueue_mission``), imported on first use."""
+
+    def enqueue(mission_id: str) -> None:
+        from workers.tasks import enqueue_mission
+
+        enqueue_mission(mission_id, settings)
+
+    return enqueue
+
+
+def _openapi(app: FastAPI) -> dict[str, Any]:
+    if app.openapi_schema is None:
+        schema = get_openapi(
+            title=app.title,
+            version=app.version,
+            description=app.description,
+            routes=app.routes,
+        )
+        _, definitions = models_json_schema(
+            [(MissionSpec, "validation"), (ExampleRequest, "validation")],
+            ref_template="#/components/schemas/{model}",
+        )
+        components = schema.setdefault("components", {}).setdefault("schemas", {})
+        components.update(definitions["$defs"])
+        app.openapi_schema = schema
+    return app.openapi_schema
+
+
+def create_app(settings: Settings | None = None, enqueue: Enqueue | None = None) -> FastAPI:
+    """The API on ``settings`` (default: the environment's), sending new missions to
+    ``enqueue`` (default: Celery)."""
+    settings = settings or get_settings()
+    services = Services(
+        settings=settings,
+        database=Database(settings.database_url),
+        enqueue=enqueue or default_enqueue(settings),
+    )
+
+    @asynccontextmanager
+    async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
+        if not settings.api_keys:
+            log.warning(OPEN_API_WARNING)
+        try:
+            yield
+        finally:
+            services.database.dispose()
+
+    app = FastAPI(
+        title="ltlnav",
+        version="0.1.0",
+        description="Plan LTL robot missions and train their control policies.",
+        lifespan=lifespan,
+    )
+    app.state.services = services
+    app.add_middleware(BodyLimit, max_body_bytes=settings.max_body_bytes)
+    install_handlers(app)
+    app.include_router(missions.router)
+    app.include_router(events.router)
+    app.include_router(system.router)
+    if system.STATIC_DIR.is_dir():
+        app.mount("/static", StaticFiles(directory=system.STATIC_DIR), name="static")
+    app.openapi = lambda: _openapi(app)  # type: ignore[method-assign]
+    return app
+
+
+_default_app: FastAPI | None = None
+
+
+def __getattr__(name: str) -> FastAPI:
+    # ``app`` is built on first access so that importing this module has no side effects.
+    global _default_app
+    if name != "app":
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    if _default_app is None:
+        _default_app = create_app()
+    return _default_app

@@ -1,0 +1,154 @@
+"""Response and request models of the API (they document ``/openapi.json``)."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from service.models import JobStatus, MissionStatus
+
+
+class Message(BaseModel):
+    """An error with one sentence of explanation."""
+
+    detail: str
+
+
+class Problem(BaseModel):
+    """One located problem of a request: ``loc`` is the path inside the request."""
+
+    loc: list[str | int]
+    msg: str
+    type: str
+    field: str | None = Field(None, description="Dotted path in the mission document.")
+    column: int | None = Field(None, description="1-based column in the task formula.")
+
+
+class Problems(BaseModel):
+    """Every problem found in a request."""
+
+    detail: list[Problem]
+
+
+class ExampleRequest(BaseModel):
+    """Submit one of the bundled example missions by name (``GET /examples``)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    example: str = Field(description="Name of the example (its file name without extension).")
+
+
+class MissionLinks(BaseModel):
+    """Where to find a mission's resources."""
+
+    model_config = ConfigDict(populate_by_name=True)
+
+    self_: str = Field(alias="self")
+    plan_png: str
+    events: str
+    cancel: str
+    bundle: str
+    curves: list[str] = Field(default_factory=list)
+
+
+class Submitted(BaseModel):
+    """A mission accepted for planning and training."""
+
+    id: str
+    status: MissionStatus
+    links: MissionLinks
+
+
+class JobView(BaseModel):
+    """One sub-task's training job."""
+
+    index: int
+    status: JobStatus
+    steps_done: int
+    budget: int
+    success_rate: float | None
+    eta_seconds: float | None
+    attempts: int
+    reason: str | None
+    final: dict[str, Any] | None = Field(
+        description="The final evaluation of the trained sub-policy (when done)."
+    )
+
+
+class MissionView(BaseModel):
+    """A mission and where it is in its life cycle."""
+
+    id: str
+    name: str
+    status: MissionStatus
+    reason: str | None
+    cancel_requested: bool
+    created_at: datetime
+    updated_at: datetime
+    task: str
+    robot: str | None = Field(description="The robot model.")
+    plan: dict[str, Any] | None = Field(
+        description="Plan summary once planned: automaton_states, pruned_states, "
+        "prefix_length, suffix_length, cost, seconds, subtasks [{index, phase, goal, "
+        "length, balls}]."
+    )
+    jobs: list[JobView]
+    evaluation: dict[str, Any] | None = Field(
+        description="The whole-mission evaluation (rollouts of the concatenated policy)."
+    )
+    links: MissionLinks
+
+
+class MissionPageView(BaseModel):
+    """One page of missions, newest first."""
+
+    items: list[MissionView]
+    total: int
+    limit: int
+    offset: int
+
+
+class CurvePoint(BaseModel):
+    """One periodic evaluation of a sub-task during training."""
+
+    steps: int
+    success_rate: float
+    mean_return: float | None
+    episodes: int
+
+
+class Curve(BaseModel):
+    """A sub-task's learning curve: success rate and return against steps."""
+
+    index: int
+    points: list[CurvePoint]
+
+
+class ExampleView(BaseModel):
+    """A bundled example mission."""
+
+    name: str
+    task: str
+    robot: str
+
+
+class Examples(BaseModel):
+    """The bundled example missions."""
+
+    examples: list[ExampleView]
+
+
+ComponentState = Literal["ok", "down", "unknown"]
+
+
+class Health(BaseModel):
+    """Whether the API, the database and the broker are usable."""
+
+    status: Literal["ok", "degraded"]
+    api: ComponentState
+    database: ComponentState
+    broker: ComponentState
+    open: bool = Field(description="True when no API keys are configured (no authentication).")
+    problems: dict[str, str] = Field(default_factory=dict)
