@@ -364,7 +364,7 @@ async function missionView(gen, view, id) {
     actions: h("div", { class: "row" }),
     status: h("p", { class: "error-text", role: "alert", id: "action-error" }),
     plan: h("div", {}),
-    jobs: h("div", {}),
+    jobs: h("div", { id: "training" }),
     curves: h("div", {}, h("p", { class: "muted" }, "No curves yet.")),
     evaluation: h("div", {}),
   };
