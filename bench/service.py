@@ -1,0 +1,341 @@
+"""Service benchmark: API latency under load, time to the first training step, worker scaling.
+
+Run with ``.venv/bin/python bench/service.py`` (embedded SQLite + SQLAlchemy broker) or with
+``--redis redis://127.0.0.1:6379/0 --postgres postgresql://postgres@127.0.0.1:5432/DB`` (the
+database must exist; it is migrated). Starts its own ``ltlnav serve`` / ``ltlnav worker``
+processes on free ports with their data under a temporary directory, and prints one table.
+
+1. ``POST /missions`` latency (sequential submissions, API without a worker: missions queue).
+2. ``GET /missions/{id}`` latency with ``--pollers`` concurrent clients (httpx, asyncio).
+3. Per worker count K: a 4-sub-task mission with a fixed budget per sub-task on one worker with
+   ``--concurrency K``: time from submission to the first training step (first ``steps_done``
+   > 0 seen by polling every 50 ms; progress is written every ``heartbeat`` seconds) and the
+   wall time to ``done``. Speed-up = wall(1) / wall(K); ideal = K while K <= sub-tasks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import random
+import signal
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import httpx  # noqa: E402
+
+LTLNAV = Path(sys.executable).with_name("ltlnav")
+EXAMPLE = "bench-gf2"
+HEARTBEAT = 0.5
+
+
+def bench_mission(timesteps: int) -> dict[str, Any]:
+    """GF a && GF b in a 4 x 4 m world: a prefix and a suffix of two sub-tasks each (four)."""
+    return {
+        "name": EXAMPLE,
+        "task": "[]!obstacle && []<>a && []<>b",
+        "robot": {"model": "point", "start": [0.5, 0.5], "radius": 0.05},
+        "planner": {"seed": 1, "refine_iterations": 300},
+        "world": {
+            "bounds": [[0, 4], [0, 4]],
+            "obstacles": [{"box": {"min": [2.6, 2.6], "max": [3.4, 3.4]}}],
+            "regions": {
+                "a": {"ball": {"center": [3.4, 0.6], "radius": 0.3}},
+                "b": {"box": {"min": [0.2, 3.2], "max": [0.8, 3.8]}},
+            },
+        },
+        "training": {
+            "n_timesteps": timesteps,
+            "eval_freq": max(timesteps // 4, 1),
+            "eval_episodes": 5,
+            "final_eval_episodes": 10,
+            "mission_episodes": 10,
+            "hyperparams": {"policy_kwargs": {"net_arch": [32, 32]}},
+        },
+    }
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port: int = sock.getsockname()[1]
+        return port
+
+
+@dataclass
+class Layout:
+    """Where one run keeps its data, and how its processes reach each other."""
+
+    root: Path
+    redis: str | None
+    postgres: str | None
+
+    def env(self) -> dict[str, str]:
+        env = {
+            k: v
+            for k, v in os.environ.items()
+            if not k.startswith("LTLNAV_") and k != "DATABASE_URL"
+        }
+        env.update(
+            LTLNAV_DATA_DIR=str(self.root / "data"),
+            LTLNAV_EXAMPLES_DIR=str(self.root / "examples"),
+            LTLNAV_HEARTBEAT_SECONDS=str(HEARTBEAT),
+        )
+        if self.redis:
+            base = self.redis.rsplit("/", 1)[0]
+            env.update(LTLNAV_BROKER_URL=f"{base}/0", LTLNAV_RESULT_BACKEND=f"{base}/1")
+        if self.postgres:
+            env["DATABASE_URL"] = self.postgres
+        return env
+
+
+@contextmanager
+def process(
+    command: list[str], env: dict[str, str], log: Path
+) -> Iterator[subprocess.Popen[bytes]]:
+    """Run ``command`` (its output to ``log``); SIGINT, then SIGKILL of its group, at the end."""
+    with log.open("w") as out:
+        proc = subprocess.Popen(
+            command, env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True
+        )
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait(timeout=10)
+
+
+@contextmanager
+def api_server(layout: Layout) -> Iterator[str]:
+    """``ltlnav serve --no-worker`` on a free port; yields its URL once /healthz answers."""
+    port = free_port()
+    log = layout.root / f"serve-{port}.log"
+    command = [str(LTLNAV), "serve", "--no-worker", "--host", "127.0.0.1", "--port", str(port)]
+    with process(command, layout.env(), log) as proc:
+        url = f"http://127.0.0.1:{port}"
+        deadline = time.monotonic() + 90
+        while True:
+            if proc.poll() is not None:
+                raise RuntimeError(f"ltlnav serve exited:\n{log.read_text()[-3000:]}")
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"ltlnav serve: no /healthz in 90 s:\n{log.read_text()[-3000:]}")
+            try:
+                if httpx.get(f"{url}/healthz", timeout=2).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.2)
+        yield url
+
+
+@contextmanager
+def worker(layout: Layout, concurrency: int) -> Iterator[None]:
+    """``ltlnav worker --concurrency K``; returns once Celery says it is ready."""
+    log = layout.root / f"worker-{concurrency}.log"
+    command = [str(LTLNAV), "worker", "--concurrency", str(concurrency)]
+    with process(command, layout.env(), log) as proc:
+        deadline = time.monotonic() + 120
+        while " ready." not in log.read_text():
+            if proc.poll() is not None:
+                raise RuntimeError(f"ltlnav worker exited:\n{log.read_text()[-3000:]}")
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"worker not ready in 120 s:\n{log.read_text()[-3000:]}")
+            time.sleep(0.2)
+        yield
+
+
+def make_layout(parent: Path, name: str, args: argparse.Namespace) -> Layout:
+    root = parent / name
+    (root / "examples").mkdir(parents=True)
+    mission = bench_mission(args.timesteps)
+    (root / "examples" / f"{EXAMPLE}.json").write_text(json.dumps(mission))
+    return Layout(root, args.redis, args.postgres)
+
+
+def percentiles(samples: list[float]) -> tuple[float, float, float]:
+    """p50, p99 and max in milliseconds."""
+    ordered = sorted(samples)
+    p99 = ordered[min(len(ordered) - 1, round(0.99 * (len(ordered) - 1)))]
+    return 1000 * statistics.median(ordered), 1000 * p99, 1000 * ordered[-1]
+
+
+def submit_latency(url: str, count: int) -> tuple[list[float], list[str]]:
+    times, ids = [], []
+    with httpx.Client(base_url=url, timeout=30) as client:
+        for _ in range(count):
+            start = time.perf_counter()
+            response = client.post("/missions", json={"example": EXAMPLE})
+            times.append(time.perf_counter() - start)
+            response.raise_for_status()
+            ids.append(response.json()["id"])
+    return times, ids
+
+
+async def poll_latency(url: str, ids: list[str], pollers: int, seconds: float) -> list[float]:
+    times: list[float] = []
+    limits = httpx.Limits(max_connections=pollers, max_keepalive_connections=pollers)
+    async with httpx.AsyncClient(base_url=url, timeout=30, limits=limits) as client:
+        stop = time.monotonic() + seconds
+
+        async def poller(seed: int) -> None:
+            rng = random.Random(seed)
+            while time.monotonic() < stop:
+                start = time.perf_counter()
+                response = await client.get(f"/missions/{rng.choice(ids)}")
+                times.append(time.perf_counter() - start)
+                response.raise_for_status()
+
+        await asyncio.gather(*(poller(i) for i in range(pollers)))
+    return times
+
+
+@dataclass
+class MissionRun:
+    concurrency: int
+    first_step: float | None
+    wall: float
+    status: str
+    subtasks: int
+
+
+def run_mission(url: str, concurrency: int, limit: float) -> MissionRun:
+    with httpx.Client(base_url=url, timeout=30) as client:
+        start = time.perf_counter()
+        response = client.post("/missions", json={"example": EXAMPLE})
+        response.raise_for_status()
+        mission_id = response.json()["id"]
+        first_step: float | None = None
+        while True:
+            mission = client.get(f"/missions/{mission_id}").json()
+            now = time.perf_counter() - start
+            if first_step is None and any(j["steps_done"] > 0 for j in mission["jobs"]):
+                first_step = now
+            if mission["status"] in ("done", "failed", "cancelled") or now > limit:
+                return MissionRun(
+                    concurrency, first_step, now, mission["status"], len(mission["jobs"])
+                )
+            time.sleep(0.05)
+
+
+def mission_rows(runs: list[MissionRun], timesteps: int) -> list[tuple[str, str, str]]:
+    """Table rows of the mission runs: first step per run, then wall time and speed-up."""
+    rows = []
+    for run in runs:
+        first = "-" if run.first_step is None else f"{run.first_step:.2f} s"
+        verdict = "met" if run.first_step is not None and run.first_step < 3 else "MISSED"
+        rows.append(
+            (
+                f"first training step, worker --concurrency {run.concurrency}",
+                first,
+                f"< 3 s: {verdict} (progress every {HEARTBEAT} s)",
+            )
+        )
+    for run in runs:
+        speedup = runs[0].wall / run.wall
+        ideal = run.concurrency / runs[0].concurrency
+        target = "-"
+        if run is not runs[0]:
+            verdict = "met" if speedup >= 0.9 * ideal else "MISSED"
+            target = f">= {0.9 * ideal:.1f}x (ideal {ideal:.0f}x): {verdict}"
+        rows.append(
+            (
+                f"{run.subtasks} sub-tasks x {timesteps} steps, concurrency {run.concurrency}",
+                f"{run.status} in {run.wall:.1f} s, speed-up {speedup:.2f}x",
+                target,
+            )
+        )
+    return rows
+
+
+def machine_note() -> str:
+    load = os.getloadavg()
+    return (
+        f"machine: {os.cpu_count()} cores, load average {load[0]:.1f} / {load[1]:.1f} / "
+        f"{load[2]:.1f} at start (other jobs running make every figure pessimistic)"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--submissions", type=int, default=200, help="POST /missions samples")
+    parser.add_argument("--pollers", type=int, default=50, help="concurrent GET clients")
+    parser.add_argument("--seconds", type=float, default=15.0, help="duration of the GET load")
+    parser.add_argument("--timesteps", type=int, default=3000, help="budget per sub-task")
+    parser.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="K to compare")
+    parser.add_argument("--skip-scaling", action="store_true", help="latency only")
+    parser.add_argument("--redis", help="Redis URL for broker (db 0) and results (db 1)")
+    parser.add_argument("--postgres", help="PostgreSQL URL of an existing database")
+    parser.add_argument("--limit", type=float, default=900.0, help="give up on a mission after")
+    args = parser.parse_args()
+
+    print(machine_note(), flush=True)
+    rows: list[tuple[str, str, str]] = []
+    with tempfile.TemporaryDirectory(prefix="ltlnav-bench-") as tmp:
+        parent = Path(tmp)
+        layout = make_layout(parent, "latency", args)
+        with api_server(layout) as url:
+            posts, ids = submit_latency(url, args.submissions)
+            gets = asyncio.run(poll_latency(url, ids, args.pollers, args.seconds))
+        p50, p99, worst = percentiles(posts)
+        rows.append(
+            (
+                f"POST /missions ({len(posts)} sequential)",
+                f"p50 {p50:.1f} ms, p99 {p99:.1f} ms, max {worst:.1f} ms",
+                "-",
+            )
+        )
+        p50, p99, worst = percentiles(gets)
+        rate = len(gets) / args.seconds
+        verdict = "met" if p99 < 50 else "MISSED"
+        rows.append(
+            (
+                f"GET /missions/{{id}} ({args.pollers} pollers, {args.seconds:.0f} s)",
+                f"p50 {p50:.1f} ms, p99 {p99:.1f} ms, max {worst:.1f} ms, {rate:.0f} req/s",
+                f"p99 < 50 ms: {verdict}",
+            )
+        )
+        print(f"latency done: {rows[-2][1]} | {rows[-1][1]}", flush=True)
+
+        runs: list[MissionRun] = []
+        for k in [] if args.skip_scaling else args.workers:
+            layout = make_layout(parent, f"workers-{k}", args)
+            with api_server(layout) as url, worker(layout, k):
+                runs.append(run_mission(url, k, args.limit))
+            run = runs[-1]
+            print(
+                f"K={k}: {run.status} in {run.wall:.1f} s, first step {run.first_step}", flush=True
+            )
+        rows.extend(mission_rows(runs, args.timesteps))
+
+    storage = (
+        "Redis + PostgreSQL" if args.redis or args.postgres else "embedded SQLite + sqla broker"
+    )
+    print(f"\nltlnav service benchmark ({storage})")
+    widths = [max(len(r[i]) for r in rows) for i in range(3)]
+    header = ("measure", "result", "target")
+    widths = [max(w, len(h)) for w, h in zip(widths, header, strict=True)]
+    for row in [header, tuple("-" * w for w in widths), *rows]:
+        print("  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)))
+
+
+if __name__ == "__main__":
+    main()
