@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any
 
-from sqlalchemy import func, select, update
+from sqlalchemy import delete, func, or_, select, update
 from sqlalchemy.orm import Session
 
 from planner.errors import LtlnavError
@@ -208,6 +208,14 @@ def cancel_requested(session: Session, mission_id: str) -> bool:
     """Whether a cancel was requested (one cheap query, for the training hooks)."""
     query = select(Mission.cancel_requested).where(Mission.id == mission_id)
     return bool(session.scalar(query))
+
+
+def halted(session: Session, mission_id: str) -> bool:
+    """Whether a mission's running jobs should stop: cancel requested, or it already ended
+    (another job failed), or it is gone."""
+    query = select(Mission.cancel_requested, Mission.status).where(Mission.id == mission_id)
+    row = session.execute(query).one_or_none()
+    return row is None or bool(row[0]) or row[1] in FINAL_STATES
 
 
 def set_plan(
@@ -445,3 +453,183 @@ def missions_ready_to_assemble(session: Session, idle_seconds: float) -> list[Mi
         .order_by(Mission.updated_at)
     )
     return list(session.scalars(query))
+
+
+def claim_job(session: Session, job_id: int, worker: str) -> Job | None:
+    """Start a queued job on ``worker`` (as ``start_job``) if it is still queued; None when
+    another worker holds it or it has finished (a duplicate or redelivered task)."""
+    now = utcnow()
+    outcome = session.execute(
+        update(Job)
+        .where(Job.id == job_id, Job.status == JobStatus.queued)
+        .values(
+            status=JobStatus.running,
+            worker=worker,
+            attempts=Job.attempts + 1,
+            heartbeat_at=now,
+            started_at=func.coalesce(Job.started_at, now),
+            finished_at=None,
+        )
+        .execution_options(synchronize_session=False)
+    )
+    if getattr(outcome, "rowcount", 0) != 1:
+        return None
+    job = session.get(Job, job_id, populate_existing=True)
+    assert job is not None
+    record_event(
+        session, job.mission_id, "job", {"index": job.index, "status": "running", "worker": worker}
+    )
+    return job
+
+
+def holds_job(session: Session, job_id: int, worker: str, beat: bool = False) -> bool:
+    """Whether ``worker`` still runs the job (the reconciler did not hand it to another); with
+    ``beat`` its heartbeat is refreshed in the same statement."""
+    condition = (Job.id == job_id, Job.status == JobStatus.running, Job.worker == worker)
+    if beat:
+        outcome = session.execute(
+            update(Job)
+            .where(*condition)
+            .values(heartbeat_at=utcnow())
+            .execution_options(synchronize_session=False)
+        )
+        return getattr(outcome, "rowcount", 0) == 1
+    return session.scalar(select(func.count()).select_from(Job).where(*condition)) == 1
+
+
+def drop_evaluations_after(session: Session, job_id: int, steps: int) -> None:
+    """Delete a job's curve points beyond ``steps`` (a resumed job redoes those steps)."""
+    session.execute(delete(Evaluation).where(Evaluation.job_id == job_id, Evaluation.steps > steps))
+
+
+def touch_mission(session: Session, mission_id: str) -> None:
+    """Refresh ``updated_at`` (the heartbeat of a mission being planned or assembled)."""
+    session.execute(
+        update(Mission)
+        .where(Mission.id == mission_id)
+        .values(updated_at=utcnow())
+        .execution_options(synchronize_session=False)
+    )
+
+
+def _claim_mission(
+    session: Session, mission: Mission, status: MissionStatus, to: MissionStatus | None = None
+) -> bool:
+    """Compare-and-set on (status, updated_at): of several reconcilers one wins. Moves the
+    mission back to ``to`` when given (a reconcile-only move, not in ``TRANSITIONS``)."""
+    values: dict[str, Any] = {"updated_at": utcnow()}
+    if to is not None:
+        values["status"] = to
+    outcome = session.execute(
+        update(Mission)
+        .where(
+            Mission.id == mission.id,
+            Mission.status == status,
+            Mission.updated_at == mission.updated_at,
+        )
+        .values(**values)
+        .execution_options(synchronize_session=False)
+    )
+    won = getattr(outcome, "rowcount", 0) == 1
+    if won and to is not None:
+        reason = f"{status.value} stalled: its worker stopped"
+        record_event(session, mission.id, "status", {"status": to.value, "reason": reason})
+    return won
+
+
+def _older(session: Session, status: MissionStatus, seconds: float) -> list[Mission]:
+    cutoff = utcnow() - timedelta(seconds=seconds)
+    query = select(Mission).where(Mission.status == status, Mission.updated_at < cutoff)
+    return list(session.scalars(query.order_by(Mission.updated_at)))
+
+
+def reclaim_stalled_missions(session: Session, stale_after_seconds: float) -> list[Mission]:
+    """Missions planning or evaluating whose heartbeat (``updated_at``) is older than
+    ``stale_after_seconds``: moved back to queued / training, claimed by compare-and-set.
+    Returns those this call claimed (their task must be sent again)."""
+    moves = {
+        MissionStatus.planning: MissionStatus.queued,
+        MissionStatus.evaluating: MissionStatus.training,
+    }
+    claimed: list[Mission] = []
+    for status, back in moves.items():
+        for mission in _older(session, status, stale_after_seconds):
+            if _claim_mission(session, mission, status, back):
+                claimed.append(mission)
+    return claimed
+
+
+def claim_queued_missions(session: Session, older_than_seconds: float) -> list[Mission]:
+    """Queued missions untouched for ``older_than_seconds``, each claimed (its ``updated_at``
+    refreshed) so that one reconciler sends it again and not before that long again."""
+    return [
+        m
+        for m in _older(session, MissionStatus.queued, older_than_seconds)
+        if _claim_mission(session, m, MissionStatus.queued)
+    ]
+
+
+def claim_assemblies(session: Session, idle_seconds: float) -> list[Mission]:
+    """``missions_ready_to_assemble``, each claimed for one reconciler (as above)."""
+    return [
+        m
+        for m in missions_ready_to_assemble(session, idle_seconds)
+        if _claim_mission(session, m, MissionStatus.training)
+    ]
+
+
+def claim_queued_jobs(session: Session, older_than_seconds: float) -> list[Job]:
+    """Queued jobs of training missions, neither the mission nor the job touched for
+    ``older_than_seconds``; each claimed by refreshing its ``heartbeat_at``."""
+    cutoff = utcnow() - timedelta(seconds=older_than_seconds)
+    query = (
+        select(Job)
+        .join(Mission, Mission.id == Job.mission_id)
+        .where(
+            Job.status == JobStatus.queued,
+            Mission.status == MissionStatus.training,
+            Mission.updated_at < cutoff,
+            or_(Job.heartbeat_at.is_(None), Job.heartbeat_at < cutoff),
+        )
+        .order_by(Job.id)
+    )
+    claimed: list[Job] = []
+    for job in session.scalars(query):
+        seen = job.heartbeat_at
+        same = Job.heartbeat_at.is_(None) if seen is None else Job.heartbeat_at == seen
+        outcome = session.execute(
+            update(Job)
+            .where(Job.id == job.id, Job.status == JobStatus.queued, same)
+            .values(heartbeat_at=utcnow())
+            .execution_options(synchronize_session=False)
+        )
+        if getattr(outcome, "rowcount", 0) == 1:
+            claimed.append(job)
+    return claimed
+
+
+def cancel_idle_missions(session: Session) -> list[str]:
+    """Missions with a cancel request and no running job: cancelled now, their queued jobs
+    too (a running job's own hook cancels its mission when it stops)."""
+    running = select(Job.id).where(Job.mission_id == Mission.id, Job.status == JobStatus.running)
+    query = select(Mission.id).where(
+        Mission.cancel_requested.is_(True),
+        Mission.status.not_in(list(FINAL_STATES)),
+        ~running.exists(),
+    )
+    done: list[str] = []
+    for mission_id in list(session.scalars(query)):
+        try:
+            set_status(session, mission_id, MissionStatus.cancelled, "cancelled on request")
+        except TransitionError:
+            continue
+        cancel_queued_jobs(session, mission_id)
+        done.append(mission_id)
+    return done
+
+
+def cancel_queued_jobs(session: Session, mission_id: str) -> None:
+    """Mark a mission's queued jobs cancelled (their tasks then do nothing)."""
+    for job in mission_jobs(session, mission_id):
+        if job.status == JobStatus.queued:
+            finish_job(session, job.id, JobStatus.cancelled, reason="mission cancelled")

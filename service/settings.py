@@ -9,6 +9,7 @@ server; PostgreSQL and Redis come in through ``DATABASE_URL`` / ``LTLNAV_BROKER_
 from __future__ import annotations
 
 import json
+import os
 from functools import lru_cache
 from pathlib import Path
 from typing import Annotated, Any
@@ -83,6 +84,61 @@ class Settings(BaseSettings):
     stale_after_seconds: float = Field(default=60.0, gt=0)
     """A running job whose heartbeat is older than this is taken for dead and re-enqueued."""
 
+    task_time_limit: float = Field(default=6 * 3600.0, gt=0)
+    """Hard time limit of a task in seconds (its process is killed): training takes hours."""
+
+    task_soft_time_limit: float | None = Field(default=None, gt=0)
+    """Soft limit (the task is told and fails cleanly), below the hard one. None: the hard
+    limit minus 5 % (at most 5 minutes less)."""
+
+    visibility_timeout: float | None = Field(default=None, gt=0)
+    """Redis redelivers a task unacknowledged this long (seconds): it must exceed the hard
+    limit or a long training runs twice. None: the hard limit plus one hour."""
+
+    unacked_restore_interval: float = Field(default=5.0, gt=0)
+    """Seconds between Redis sweeps for unacknowledged messages (kombu's default waits ~100 s)."""
+
+    worker_concurrency: int | None = Field(default=None, ge=1)
+    """Training processes per worker. None: the number of cores."""
+
+    broker_polling_interval: float = Field(default=0.05, gt=0)
+    """Seconds between polls of the SQLAlchemy (embedded) broker; kombu's 1 s default makes
+    every hop of a chord take a second."""
+
+    reconcile_seconds: float = Field(default=5.0, gt=0)
+    """How often each worker reconciles the database with the queue (stale jobs, lost
+    messages, lost chord callbacks)."""
+
+    requeue_after_seconds: float = Field(default=10.0, gt=0)
+    """A mission or job still queued this long while the broker queue is empty lost its
+    message: the reconciler sends it again."""
+
+    broker_cleanup_seconds: float = Field(default=60.0, gt=0)
+    """How often consumed messages are deleted from the SQLAlchemy broker's table (kombu keeps
+    them forever)."""
+
+    max_attempts: int = Field(default=5, ge=1)
+    """A job started this many times without finishing (killed workers, time limits) fails."""
+
+    @property
+    def soft_time_limit(self) -> float:
+        """The soft time limit in effect (see ``task_soft_time_limit``)."""
+        if self.task_soft_time_limit is not None:
+            return self.task_soft_time_limit
+        return max(self.task_time_limit * 0.95, self.task_time_limit - 300.0)
+
+    @property
+    def redis_visibility_timeout(self) -> float:
+        """The visibility timeout in effect (see ``visibility_timeout``)."""
+        if self.visibility_timeout is not None:
+            return self.visibility_timeout
+        return self.task_time_limit + 3600.0
+
+    @property
+    def concurrency(self) -> int:
+        """Worker processes in effect (see ``worker_concurrency``)."""
+        return self.worker_concurrency or os.cpu_count() or 1
+
     @field_validator("data_dir", "artifact_dir", "examples_dir")
     @classmethod
     def _absolute(cls, value: Path) -> Path:
@@ -109,6 +165,20 @@ class Settings(BaseSettings):
             raise ValueError(
                 f"stale_after_seconds ({self.stale_after_seconds}) must exceed "
                 f"heartbeat_seconds ({self.heartbeat_seconds}), or live jobs look dead"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _limits_ordered(self) -> Settings:
+        if self.soft_time_limit >= self.task_time_limit:
+            raise ValueError(
+                f"task_soft_time_limit ({self.soft_time_limit}) must be below "
+                f"task_time_limit ({self.task_time_limit})"
+            )
+        if self.redis_visibility_timeout <= self.task_time_limit:
+            raise ValueError(
+                f"visibility_timeout ({self.redis_visibility_timeout}) must exceed "
+                f"task_time_limit ({self.task_time_limit}), or Redis runs long tasks twice"
             )
         return self
 

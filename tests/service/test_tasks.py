@@ -1,0 +1,161 @@
+"""The task logic (``workers.steps``) on a real SQLite database and real tiny trainings, with
+the follow-up tasks recorded instead of sent."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from service import repository
+from service.db import Database, upgrade
+from service.models import JobStatus, MissionStatus
+from service.settings import Settings
+from tests.workers.missions import TINY, tiny_mission
+from workers.steps import assemble_step, plan_step, train_step
+
+pytestmark = pytest.mark.timeout(120)
+
+
+class Recorder:
+    """A ``Dispatch`` that remembers what would have been sent."""
+
+    def __init__(self) -> None:
+        self.sent: list[tuple[Any, ...]] = []
+
+    def training(self, mission_id: str, indices: Sequence[int]) -> None:
+        self.sent.append(("training", mission_id, list(indices)))
+
+    def train(self, mission_id: str, index: int) -> None:
+        self.sent.append(("train", mission_id, index))
+
+    def assemble(self, mission_id: str) -> None:
+        self.sent.append(("assemble", mission_id))
+
+    def plan(self, mission_id: str) -> None:
+        self.sent.append(("plan", mission_id))
+
+
+@pytest.fixture
+def settings(tmp_path: Path, sqlite_url: str) -> Settings:
+    upgrade(sqlite_url)
+    return Settings(
+        data_dir=tmp_path,
+        database_url=sqlite_url,
+        heartbeat_seconds=0.2,
+        stale_after_seconds=1.0,
+    )
+
+
+def submit(settings: Settings, document: dict[str, Any] | None = None) -> str:
+    doc = document or tiny_mission().model_dump(mode="json")
+    with Database(settings.database_url).session() as session:
+        return repository.create_mission(session, doc["name"], doc, None).id
+
+
+def load(settings: Settings, mission_id: str) -> Any:
+    with Database(settings.database_url).session() as session:
+        mission = repository.get_mission(session, mission_id)
+        assert mission is not None
+        jobs = repository.mission_jobs(session, mission_id)
+        curves = {job.index: repository.learning_curve(session, job.id) for job in jobs}
+        saved = {job.index: repository.latest_checkpoint(session, job.id) for job in jobs}
+        return mission, jobs, curves, saved
+
+
+def test_a_mission_runs_through_plan_train_assemble(settings: Settings) -> None:
+    mission_id = submit(settings)
+    sent = Recorder()
+    assert plan_step(settings, mission_id, sent) == "planned"
+    mission, jobs, _, _ = load(settings, mission_id)
+    assert mission.status == MissionStatus.training
+    assert sent.sent == [("training", mission_id, [job.index for job in jobs])]
+    assert set(mission.plan) >= {"automaton_states", "pruned_states", "cost", "subtasks"}
+    assert [s["index"] for s in mission.plan["subtasks"]] == [job.index for job in jobs]
+    assert all(s["balls"] > 0 and s["length"] > 0 for s in mission.plan["subtasks"])
+    folder = settings.artifact_dir / mission_id
+    assert Path(mission.plan_image) == folder / "plan.png" and (folder / "plan.png").is_file()
+    assert (folder / "plan.json").is_file()
+    # a redelivered planning task changes nothing
+    assert plan_step(settings, mission_id, sent) == "busy"
+    assert len(sent.sent) == 1
+
+    for job in jobs[:-1]:
+        assert train_step(settings, mission_id, job.index, sent, in_chord=False) == "done"
+    assert assemble_step(settings, mission_id) == "waiting"
+    last = jobs[-1].index
+    assert train_step(settings, mission_id, last, sent, in_chord=False) == "done"
+    assert sent.sent[-1] == ("assemble", mission_id)  # the last job outside a chord
+    # a finished job is not trained again
+    assert train_step(settings, mission_id, last, sent, in_chord=True) == "done"
+
+    mission, jobs, curves, saved = load(settings, mission_id)
+    budget = TINY["training"]["n_timesteps"]
+    for job in jobs:
+        assert job.status == JobStatus.done and job.attempts == 1
+        assert job.steps_done == budget and job.result["final"]["episodes"] == 2
+        assert job.out_dir == str(folder / f"subtask_{job.index}")
+        assert [p.steps for p in curves[job.index]] == [100, 200]
+        assert saved[job.index] is not None and saved[job.index].steps == budget
+    assert assemble_step(settings, mission_id) == "done"
+    assert assemble_step(settings, mission_id) == "final"
+    mission, *_ = load(settings, mission_id)
+    assert mission.status == MissionStatus.done
+    assert Path(mission.bundle_path) == folder / "bundle.zip" and (folder / "bundle.zip").is_file()
+    assert mission.evaluation["episodes"] == 2
+
+
+def test_an_infeasible_mission_fails_with_the_planners_reason(settings: Settings) -> None:
+    doc = tiny_mission().model_dump(mode="json")
+    doc["task"] = "[]!obstacle && <>(a && b)"  # a and b are disjoint
+    mission_id = submit(settings, doc)
+    assert plan_step(settings, mission_id, Recorder()) == "infeasible"
+    mission, jobs, _, _ = load(settings, mission_id)
+    assert mission.status == MissionStatus.failed and jobs == []
+    assert mission.reason and "unsatisfiable in this world" in mission.reason
+
+
+def test_an_unexpected_error_fails_the_mission_with_a_reason(settings: Settings) -> None:
+    doc = tiny_mission().model_dump(mode="json")
+    mission_id = submit(settings, doc)
+    plan_step(settings, mission_id, Recorder())
+    # the stored plan is damaged: training cannot load it
+    stored = settings.artifact_dir / mission_id / "plan.json"
+    saved = json.loads(stored.read_text())
+    saved["plan"]["subtasks"] = "garbage"
+    stored.write_text(json.dumps(saved))
+    assert train_step(settings, mission_id, 0, Recorder(), in_chord=True) == "failed"
+    mission, jobs, _, _ = load(settings, mission_id)
+    assert mission.status == MissionStatus.failed
+    assert mission.reason.startswith("sub-task 0: ")
+    assert jobs[0].status == JobStatus.failed and jobs[0].reason == mission.reason
+    # the other jobs then do nothing
+    assert train_step(settings, mission_id, 1, Recorder(), in_chord=True) == "final"
+
+
+def test_cancel_before_training_cancels_the_mission_and_its_queued_jobs(
+    settings: Settings,
+) -> None:
+    mission_id = submit(settings)
+    plan_step(settings, mission_id, Recorder())
+    with Database(settings.database_url).session() as session:
+        repository.request_cancel(session, mission_id)
+    assert train_step(settings, mission_id, 0, Recorder(), in_chord=True) == "cancelled"
+    mission, jobs, _, _ = load(settings, mission_id)
+    assert mission.status == MissionStatus.cancelled
+    assert {job.status for job in jobs} == {JobStatus.cancelled}
+
+
+def test_a_job_past_its_attempts_fails(settings: Settings) -> None:
+    mission_id = submit(settings)
+    plan_step(settings, mission_id, Recorder())
+    with Database(settings.database_url).session() as session:
+        job = repository.get_job(session, mission_id, 0)
+        assert job is not None
+        job.attempts = settings.max_attempts
+    assert train_step(settings, mission_id, 0, Recorder(), in_chord=True) == "failed"
+    mission, jobs, _, _ = load(settings, mission_id)
+    assert mission.status == MissionStatus.failed and "gave up after" in mission.reason

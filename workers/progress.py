@@ -1,0 +1,198 @@
+"""What a training task writes to the database while it runs: heartbeats, progress, the
+learning curve and checkpoints, and the cancel flag it reads.
+
+``JobMonitor`` supplies the hooks of ``workers.training.train_subtask``: ``on_progress`` writes
+progress at most every ``heartbeat_seconds`` (curve points and checkpoints as soon as they
+appear) and ``should_stop`` answers from a flag a background thread refreshes, so training never
+waits on the database. The thread also keeps the heartbeat going through the parts of a job
+without hooks (loading, the final evaluation) and notices when the reconciler handed the job
+to another worker (then the job stops and writes nothing more).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager, contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from service import repository
+from service.db import Database
+from workers.callbacks import checkpoints
+
+log = logging.getLogger(__name__)
+
+
+@contextmanager
+def beating(every: float, beat: Callable[[], None]) -> Iterator[None]:
+    """Call ``beat()`` every ``every`` seconds in a thread while the block runs (errors are
+    logged: a missed beat is not worth failing the work for)."""
+    stop = threading.Event()
+
+    def loop() -> None:
+        while not stop.wait(every):
+            try:
+                beat()
+            except Exception:
+                log.exception("heartbeat failed")
+
+    thread = threading.Thread(target=loop, daemon=True, name="ltlnav-heartbeat")
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
+
+
+def mission_heartbeat(db: Database, mission_id: str, every: float) -> AbstractContextManager[None]:
+    """``beating`` that refreshes a mission's ``updated_at`` (planning, assembling)."""
+
+    def beat() -> None:
+        with db.session() as session:
+            repository.touch_mission(session, mission_id)
+
+    return beating(every, beat)
+
+
+class JobMonitor:
+    """Database side of one running job (see the module docstring)."""
+
+    def __init__(
+        self,
+        db: Database,
+        mission_id: str,
+        job_id: int,
+        worker: str,
+        out_dir: Path,
+        heartbeat_seconds: float,
+        check_seconds: float = 0.5,
+    ) -> None:
+        self.db, self.mission_id, self.job_id, self.worker = db, mission_id, job_id, worker
+        self.out_dir = out_dir
+        self.heartbeat_seconds = heartbeat_seconds
+        self.check_seconds = min(check_seconds, heartbeat_seconds)
+        self.cancelled = threading.Event()
+        self.lost = threading.Event()
+        self._last_write = -np.inf
+        self._last_beat = time.monotonic()
+        self._curve_upto: int | None = None
+        self._checkpoints: set[int] = set()
+        self._npz_mtime = 0.0
+        self._started: tuple[float, int] | None = None
+
+    @property
+    def stopping(self) -> bool:
+        """Whether the job should stop (cancelled, or no longer ours)."""
+        return self.cancelled.is_set() or self.lost.is_set()
+
+    def should_stop(self) -> bool:
+        """The ``should_stop`` hook."""
+        return self.stopping
+
+    def check(self) -> None:
+        """One round of the background thread: read the cancel flag, beat when due."""
+        with self.db.session() as session:
+            if repository.halted(session, self.mission_id):
+                self.cancelled.set()
+            now = time.monotonic()
+            if now - self._last_beat >= self.heartbeat_seconds:
+                self._last_beat = now
+                if not repository.holds_job(session, self.job_id, self.worker, beat=True):
+                    self.lost.set()
+
+    @contextmanager
+    def running(self) -> Iterator[JobMonitor]:
+        """Run the background thread for the block."""
+        with beating(self.check_seconds, self.check):
+            yield self
+
+    def on_progress(self, steps: int, success_rate: float | None, total: int) -> None:
+        """The ``on_progress`` hook: throttled progress, new curve points and checkpoints."""
+        first = self._curve_upto is None
+        if first:
+            self._curve_upto = steps  # the resume point: later points will be redone
+        now = time.monotonic()
+        new_points = self._new_curve_points()
+        new_checkpoints = self._new_checkpoints()
+        due = now - self._last_write >= self.heartbeat_seconds
+        if not (first or due or new_points or new_checkpoints or steps >= total):
+            return
+        self._last_write = now
+        with self.db.session() as session:
+            if not repository.holds_job(session, self.job_id, self.worker):
+                self.lost.set()
+                return
+            if first:
+                repository.drop_evaluations_after(session, self.job_id, steps)
+            for point in new_points:
+                repository.record_evaluation(session, self.mission_id, self.job_id, *point)
+            for at, path in new_checkpoints:
+                repository.record_checkpoint(session, self.job_id, at, str(path))
+            remaining = max(total - steps, 0)
+            repository.record_progress(
+                session, self.job_id, steps, success_rate, self._eta(steps, remaining)
+            )
+        self._last_beat = now
+
+    def flush(self) -> None:
+        """Write the curve points and checkpoints not yet recorded (at the end of a run)."""
+        points, saved = self._new_curve_points(), self._new_checkpoints()
+        if not points and not saved:
+            return
+        with self.db.session() as session:
+            for point in points:
+                repository.record_evaluation(session, self.mission_id, self.job_id, *point)
+            for at, path in saved:
+                repository.record_checkpoint(session, self.job_id, at, str(path))
+
+    def _eta(self, steps: int, remaining: int) -> float | None:
+        if self._started is None:
+            self._started = (time.monotonic(), steps)
+            return None
+        t0, s0 = self._started
+        rate = (steps - s0) / max(time.monotonic() - t0, 1e-9)
+        return remaining / rate if rate > 0 else None
+
+    def _new_curve_points(self) -> list[tuple[int, int, float, float | None]]:
+        """``(steps, episodes, success_rate, mean_return)`` of evaluations not yet written."""
+        path = self.out_dir / "evaluations.npz"
+        try:
+            mtime = path.stat().st_mtime
+        except FileNotFoundError:
+            return []
+        if mtime == self._npz_mtime:
+            return []
+        try:
+            with np.load(path) as data:
+                steps = data["timesteps"].tolist()
+                results = data["results"]
+                successes = data.get("successes", None)
+        except (OSError, ValueError, KeyError, EOFError):
+            return []  # being rewritten: read it next time
+        self._npz_mtime = mtime
+        upto = self._curve_upto or 0
+        out: list[tuple[int, int, float, float | None]] = []
+        for k, at in enumerate(steps):
+            if at <= upto:
+                continue
+            returns = np.asarray(results[k], dtype=float)
+            rate = float(np.mean(successes[k])) if successes is not None else 0.0
+            mean_return = float(np.mean(returns)) if returns.size else None
+            out.append((int(at), int(returns.size), rate, mean_return))
+        if out:
+            self._curve_upto = out[-1][0]
+        return out
+
+    def _new_checkpoints(self) -> list[tuple[int, Path]]:
+        found = [
+            (steps, path)
+            for path, _buffer, steps in checkpoints(self.out_dir / "checkpoints")
+            if steps not in self._checkpoints
+        ]
+        self._checkpoints.update(steps for steps, _ in found)
+        return sorted(found)

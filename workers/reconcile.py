@@ -1,0 +1,150 @@
+"""Reconcile the database (the truth) with the queue (which can lose messages).
+
+The embedded brokers lose the messages a worker held when its main process dies (SIGKILL),
+Redis gives them back only after the visibility timeout (hours), and a chord callback is lost
+with its worker. Every worker therefore runs ``reconcile_forever`` in a thread; each pass:
+
+- cancels missions with a cancel request and no running job;
+- re-queues jobs marked running whose heartbeat is stale and sends them again (they resume
+  from their checkpoints);
+- sends planning / assembly again for missions whose planner or assembler stopped beating;
+- assembles missions whose jobs are all done but which are still training (lost callback);
+- when the broker queue is empty, sends again missions and jobs still queued for a while
+  (their messages were lost);
+- every ``broker_cleanup_seconds``, deletes consumed rows of the SQLAlchemy broker and expired
+  results.
+
+Every claim is a compare-and-set in the database, so several workers reconciling at once
+send each piece of work once.
+"""
+
+from __future__ import annotations
+
+import logging
+import random
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from celery import Celery
+from sqlalchemy import Engine, inspect, text
+
+from service import repository
+from service.db import make_engine
+from service.models import MissionStatus
+from service.settings import Settings
+from workers.celery_app import QUEUE, LtlnavCelery, is_sqla
+from workers.steps import Dispatch, database_for
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Reconciled:
+    """What one pass sent again."""
+
+    cancelled: list[str] = field(default_factory=list)
+    jobs: list[tuple[str, int]] = field(default_factory=list)
+    """``(mission id, sub-task index)`` of the jobs sent again."""
+    plans: list[str] = field(default_factory=list)
+    assemblies: list[str] = field(default_factory=list)
+
+    def __bool__(self) -> bool:
+        return bool(self.cancelled or self.jobs or self.plans or self.assemblies)
+
+
+def reconcile_once(
+    settings: Settings, dispatch: Dispatch, queue_size: Callable[[], int | None] | None = None
+) -> Reconciled:
+    """One reconciliation pass (see the module docstring). ``queue_size()`` is the number of
+    messages waiting in the broker (None: unknown; then queued work is not sent again)."""
+    db = database_for(settings)
+    out = Reconciled()
+    # First, while the jobs re-queued below are not yet sent: queued work whose message is
+    # gone (nothing waits in the broker).
+    if queue_size is not None and queue_size() == 0:
+        with db.session() as session:
+            queued = repository.claim_queued_missions(session, settings.requeue_after_seconds)
+            out.plans = [m.id for m in queued]
+            lost = repository.claim_queued_jobs(session, settings.requeue_after_seconds)
+            out.jobs = [(job.mission_id, job.index) for job in lost]
+    with db.session() as session:
+        out.cancelled = repository.cancel_idle_missions(session)
+    with db.session() as session:
+        stale = repository.reclaim_stale_jobs(session, settings.stale_after_seconds)
+        out.jobs.extend((job.mission_id, job.index) for job in stale)
+    with db.session() as session:
+        stalled = repository.reclaim_stalled_missions(session, settings.stale_after_seconds)
+        for mission in stalled:  # planning -> queued, evaluating -> training
+            stage = out.plans if mission.status == MissionStatus.queued else out.assemblies
+            stage.append(mission.id)
+    with db.session() as session:
+        ready = repository.claim_assemblies(session, settings.requeue_after_seconds)
+        out.assemblies.extend(m.id for m in ready)
+    for mission_id, index in out.jobs:
+        dispatch.train(mission_id, index)
+    for mission_id in out.plans:
+        dispatch.plan(mission_id)
+    for mission_id in out.assemblies:
+        dispatch.assemble(mission_id)
+    if out:
+        log.info("reconciled: %s", out)
+    return out
+
+
+def queue_size(app: Celery) -> int | None:
+    """Messages waiting in the service's queue (None when the broker cannot be asked)."""
+    try:
+        with app.connection_for_write() as connection:
+            declared = connection.default_channel.queue_declare(queue=QUEUE, passive=False)
+            return int(declared.message_count)
+    except Exception as error:
+        log.warning("cannot read the broker queue size: %s", error)
+        return None
+
+
+_broker_engines: dict[str, Engine] = {}
+
+
+def clean_broker(settings: Settings) -> int:
+    """Delete the consumed messages kombu's SQLAlchemy transport keeps (``visible`` false);
+    returns how many. Nothing to do on other brokers."""
+    if not is_sqla(settings.broker_url):
+        return 0
+    url = settings.broker_url.split("+", 1)[1]
+    engine = _broker_engines.get(url)
+    if engine is None:
+        engine = _broker_engines[url] = make_engine(url)
+    with engine.begin() as connection:
+        if not inspect(connection).has_table("kombu_message"):
+            return 0
+        outcome = connection.execute(
+            text("DELETE FROM kombu_message WHERE visible = :no"), {"no": False}
+        )
+        return int(outcome.rowcount or 0)
+
+
+def reconcile_forever(app: LtlnavCelery, stop: threading.Event) -> None:
+    """Reconcile every ``reconcile_seconds`` until ``stop`` is set (a worker's thread)."""
+    from workers.tasks import CeleryDispatch
+
+    settings = app.settings
+    dispatch = CeleryDispatch(app)
+    last_cleanup = -float("inf")
+    # Workers started together should not reconcile in lockstep.
+    stop.wait(random.uniform(0, min(1.0, settings.reconcile_seconds)))
+    while not stop.is_set():
+        try:
+            reconcile_once(settings, dispatch, lambda: queue_size(app))
+            if time.monotonic() - last_cleanup >= settings.broker_cleanup_seconds:
+                last_cleanup = time.monotonic()
+                removed = clean_broker(settings)
+                app.backend.cleanup()
+                if removed:
+                    log.info("deleted %d consumed broker messages", removed)
+        except Exception:
+            log.exception(
+                "reconciliation failed; trying again in %.0f s", settings.reconcile_seconds
+            )
+        stop.wait(settings.reconcile_seconds)
