@@ -329,14 +329,57 @@ async function loadCurves(mission) {
     curves.map((c) => curveChart(c.index, c.points, budgets.get(c.index))));
 }
 
+/** The named members of a zip blob as PNG blobs (stored or deflated; no ZIP64). */
+async function zipPictures(blob, names) {
+  const bytes = new Uint8Array(await blob.arrayBuffer());
+  const view = new DataView(bytes.buffer);
+  let end = bytes.length - 22;
+  while (end >= 0 && view.getUint32(end, true) !== 0x06054b50) end -= 1;
+  if (end < 0) throw new Error("the bundle is not a zip file");
+  const found = new Map();
+  let at = view.getUint32(end + 16, true);
+  for (let i = 0; i < view.getUint16(end + 10, true); i += 1) {
+    if (view.getUint32(at, true) !== 0x02014b50) throw new Error("corrupt zip directory");
+    const method = view.getUint16(at + 10, true);
+    const size = view.getUint32(at + 20, true);
+    const nameLength = view.getUint16(at + 28, true);
+    const skip = nameLength + view.getUint16(at + 30, true) + view.getUint16(at + 32, true);
+    const name = new TextDecoder().decode(bytes.subarray(at + 46, at + 46 + nameLength));
+    const local = view.getUint32(at + 42, true);
+    at += 46 + skip;
+    if (!names.includes(name) || (method !== 0 && method !== 8)) continue;
+    const start = local + 30 + view.getUint16(local + 26, true) + view.getUint16(local + 28, true);
+    let data = new Blob([bytes.subarray(start, start + size)]);
+    if (method === 8) {
+      data = await new Response(data.stream().pipeThrough(new DecompressionStream("deflate-raw"))).blob();
+    }
+    found.set(name, new Blob([data], { type: "image/png" }));
+  }
+  return found;
+}
+
+const BUNDLE_PICTURES = [
+  ["rollout.png", "whole-mission rollouts of the concatenated policy"],
+  ["learning_curves.png", "learning curves of every sub-task, as bundled"],
+];
+
+async function bundleSection(blob, name) {
+  const pictures = await zipPictures(blob, BUNDLE_PICTURES.map(([file]) => file));
+  return h("div", { class: "pictures", id: "bundle-pictures" }, BUNDLE_PICTURES
+    .filter(([file]) => pictures.has(file))
+    .map(([file, alt]) => h("figure", {},
+      h("figcaption", {}, file),
+      h("img", { class: "plan-img", alt: `${name}: ${alt}`, src: URL.createObjectURL(pictures.get(file)) }))));
+}
+
 async function blobUrl(path) {
   return URL.createObjectURL(await (await api(path)).blob());
 }
 
-async function download(mission, status) {
+async function download(mission, status, bundle) {
   status.textContent = "";
   try {
-    const url = await blobUrl(mission.links.bundle);
+    const url = URL.createObjectURL(bundle.blob || await (await api(mission.links.bundle)).blob());
     const link = h("a", { href: url, download: `${mission.name}-${mission.id}.zip` });
     document.body.append(link);
     link.click();
@@ -367,14 +410,17 @@ async function missionView(gen, view, id) {
     jobs: h("div", { id: "training" }),
     curves: h("div", {}, h("p", { class: "muted" }, "No curves yet.")),
     evaluation: h("div", {}),
+    rollouts: h("div", {}, h("p", { class: "muted" }, "Shown when the bundle is ready.")),
   };
+  const bundle = { blob: null };
   view.replaceChildren(
     h("p", {}, h("a", { href: "#/" }, "← all missions")),
     h("section", { class: "card" }, parts.header, parts.actions, parts.status),
     h("section", { class: "card" }, h("h2", {}, "Plan"), parts.plan),
     h("section", { class: "card" }, h("h2", {}, "Training"), parts.jobs,
       h("h3", {}, "Learning curves (success rate against steps)"), parts.curves),
-    h("section", { class: "card" }, h("h2", {}, "Mission evaluation"), parts.evaluation),
+    h("section", { class: "card" }, h("h2", {}, "Mission evaluation"), parts.evaluation,
+      h("h3", {}, "Rollout pictures (from the bundle)"), parts.rollouts),
   );
   let image = null;
   let polls = 0;
@@ -400,7 +446,15 @@ async function missionView(gen, view, id) {
         image = null; // the picture is written just after the plan; retried on the next poll
       }
     }
-    renderMission(mission, parts, image);
+    renderMission(mission, parts, image, bundle);
+    if (mission.status === "done" && !bundle.blob) {
+      try {
+        bundle.blob = await (await api(mission.links.bundle)).blob();
+        parts.rollouts.replaceChildren(await bundleSection(bundle.blob, mission.name));
+      } catch (error) {
+        parts.status.textContent = `bundle: ${error.message}`;
+      }
+    }
     const active = ACTIVE.has(mission.status);
     if (polls % CURVE_EVERY === 0 || !active) {
       try {
@@ -417,7 +471,7 @@ async function missionView(gen, view, id) {
   }
 }
 
-function renderMission(mission, parts, image) {
+function renderMission(mission, parts, image, bundle) {
   parts.header.replaceChildren(...[
     h("h1", {}, mission.name, " ", h("span", { id: "mission-status" }, badge(mission.status))),
     h("p", { class: "muted" }, `${mission.id} · robot ${mission.robot} · created ${when(mission.created_at)}` +
@@ -430,7 +484,7 @@ function renderMission(mission, parts, image) {
   "Cancel");
   cancelButton.addEventListener("click", () => cancel(mission, parts.status, cancelButton));
   const downloadButton = h("button", { type: "button", id: "download",
-    disabled: mission.status !== "done", onclick: () => download(mission, parts.status) },
+    disabled: mission.status !== "done", onclick: () => download(mission, parts.status, bundle) },
   "Download bundle");
   parts.actions.replaceChildren(downloadButton, cancelButton);
   parts.plan.replaceChildren(planSection(mission, image));
