@@ -215,11 +215,14 @@ async function missionsView(gen, view) {
   view.replaceChildren(h("h1", {}, "Missions"), submitForm(examples), h("section", { class: "card" },
     h("h2", {}, "Recent missions"), list));
 
+  let shown = ""; // re-render only on change: keeps focus and selection in the table
   while (gen === generation) {
     try {
       const page = await apiJson("/missions?limit=50&offset=0");
       if (gen !== generation) return;
-      list.replaceChildren(missionTable(page));
+      const text = JSON.stringify(page);
+      if (text !== shown) list.replaceChildren(missionTable(page));
+      shown = text;
       showError("");
     } catch (error) {
       if (gen !== generation) return;
@@ -425,6 +428,7 @@ async function missionView(gen, view, id) {
   let image = null;
   let polls = 0;
   let settled = 0; // polls after a final status (the plan picture may still be coming)
+  let shown = "";
   while (gen === generation) {
     let mission;
     try {
@@ -446,7 +450,9 @@ async function missionView(gen, view, id) {
         image = null; // the picture is written just after the plan; retried on the next poll
       }
     }
-    renderMission(mission, parts, image, bundle);
+    const text = JSON.stringify(mission) + Boolean(image);
+    if (text !== shown) renderMission(mission, parts, image, bundle);
+    shown = text;
     if (mission.status === "done" && !bundle.blob) {
       try {
         bundle.blob = await (await api(mission.links.bundle)).blob();
