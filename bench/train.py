@@ -1,0 +1,390 @@
+"""Table I of Cai et al. (RA-L 2023), measured with the production training code.
+
+Every row trains one mission's sub-tasks with one reward method and seed through the same
+functions as ``ltlnav train`` and the service (``workers.pipeline.plan_for`` / ``subtask_jobs``,
+``workers.training.train_subtask``, ``workers.pipeline.assemble``) into
+``OUT/<mission>/<method>/seed<N>/``. Finished jobs are reused (``train_subtask`` returns the
+stored result, an interrupted one resumes from its checkpoint), so re-running the command after
+an interruption continues where it stopped and ``--report`` re-prints the table.
+
+Methods are reward modes (``workers.training_spec.RewardSpec``): ``rrt`` (ours, the default),
+``rrt-paper`` (the paper's exact reward), ``ned``, ``tl`` and ``g-rrt`` (one agent on one guide
+through the whole lasso; its success is reaching the end of that guide with every automaton
+transition made, i.e. the whole mission from the real start, one prefix and one suffix cycle).
+Rows that train every sub-task also roll out the concatenated policy on the whole mission
+(``training.mission_episodes`` rollouts, ``training.cycles`` suffix cycles).
+
+``--overhead`` measures instead what the env and reward cost against raw stable-baselines3:
+SAC with the same network trains on the bare robot dynamics (no world, no guide, no reward) and
+on the sub-task's ``NavEnv``, interleaved, best of three; the ratio of their steps per second.
+
+Run ``.venv/bin/python bench/train.py`` (the ``table1`` preset; hours on two cores) or
+``--preset NAME``, ``--rows ...`` to choose, ``--report`` to print what is on disk.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import os
+import statistics
+import sys
+import time
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+# Run as a script, bench/ comes first on sys.path and would shadow the packages.
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import numpy as np  # noqa: E402
+import yaml  # noqa: E402
+
+from workers.mission import MissionSpec, parse_mission  # noqa: E402
+from workers.training_spec import SubtaskJob  # noqa: E402
+
+METHODS = ("rrt", "rrt-paper", "ned", "tl", "g-rrt")
+ROBOT_VARIANTS = {"racecar-phi2-fin": ("car-phi2-fin", "racecar")}
+"""Missions made from an example by swapping the robot model (name -> (example, model))."""
+
+
+@dataclass(frozen=True)
+class Row:
+    """One line of the table: a mission trained with a method and a seed."""
+
+    mission: str
+    method: str
+    seed: int
+    subtasks: tuple[int, ...] | None = None
+    """Sub-tasks to train (None: all of them, then the whole-mission rollouts)."""
+    timesteps: int | None = None
+    """Budget per sub-task (None: the mission's ``training.n_timesteps``)."""
+
+    @property
+    def folder(self) -> str:
+        return f"{self.mission}/{self.method}/seed{self.seed}"
+
+    @staticmethod
+    def parse(text: str) -> Row:
+        """``mission:method:seed[:subtasks[:timesteps]]``, subtasks ``all`` or ``0+1``."""
+        parts = text.split(":")
+        if not 3 <= len(parts) <= 5:
+            raise argparse.ArgumentTypeError(f"row {text!r}: mission:method:seed[:subs[:steps]]")
+        subs = None if len(parts) < 4 or parts[3] == "all" else tuple(map(int, parts[3].split("+")))
+        steps = int(parts[4]) if len(parts) == 5 else None
+        if parts[1] not in METHODS:
+            raise argparse.ArgumentTypeError(f"method {parts[1]!r}: one of {', '.join(METHODS)}")
+        return Row(parts[0], parts[1], int(parts[2]), subs, steps)
+
+
+BASELINE_BUDGET = 60_000
+PRESETS: dict[str, list[Row]] = {
+    "table1": [
+        Row("car-phi2-fin", "rrt", 0),
+        *[Row("car-phi2-fin", m, 0, (0,), BASELINE_BUDGET) for m in METHODS[1:]],
+        Row("car-phi2-fin", "rrt", 1),
+        Row("car-phi2-fin", "rrt", 2),
+        Row("quad-phi1-inf", "rrt", 0),
+        Row("racecar-phi2-fin", "rrt", 0),
+    ],
+    "full": [
+        Row(mission, method, seed)
+        for mission in ("car-phi2-fin",)
+        for method in METHODS
+        for seed in (0, 1, 2)
+    ]
+    + [Row("quad-phi1-inf", "rrt", s) for s in (0, 1, 2)]
+    + [Row("racecar-phi2-fin", "rrt", s) for s in (0, 1, 2)],
+}
+"""``table1``: ours on the whole car mission with 3 seeds, the four baselines on its first
+sub-task with seed 0 at the 60k stretch budget (each baseline runs its whole budget: it never
+reaches the early stop), the quadrotor and the racecar with seed 0. ``full``: every method on
+every sub-task with 3 seeds at the full budget (days of CPU on two cores)."""
+
+
+def load_mission(name: str, row: Row) -> MissionSpec:
+    """The named example (or robot variant) with the row's method, seed and budget."""
+    example, model = ROBOT_VARIANTS.get(name, (name, None))
+    document = yaml.safe_load((ROOT / "examples" / f"{example}.yaml").read_text())
+    if model is not None:
+        document["name"] = name
+        document["robot"]["model"] = model
+    training = document.setdefault("training", {})
+    training["seed"] = row.seed
+    training.setdefault("reward", {})["mode"] = row.method
+    if row.timesteps is not None:
+        training["n_timesteps"] = row.timesteps
+    return parse_mission(document)
+
+
+def row_jobs(row: Row, out: Path) -> tuple[MissionSpec, Any, list[SubtaskJob]]:
+    """The row's mission, its plan (made once, stored in the row folder) and its jobs."""
+    from workers.pipeline import plan_for, subtask_jobs
+
+    mission = load_mission(row.mission, row)
+    plan = plan_for(mission, out / row.folder)
+    jobs = subtask_jobs(mission, plan)
+    if row.method == "g-rrt":
+        jobs = jobs[:1]  # one agent for the whole lasso
+    elif row.subtasks is not None:
+        jobs = [jobs[k] for k in row.subtasks]
+    return mission, plan, jobs
+
+
+def train_job(job: SubtaskJob, out_dir: str) -> dict[str, Any]:
+    """One training job in a pool process (stored result when already finished)."""
+    from workers.training import train_subtask
+
+    return train_subtask(job, out_dir).to_json()
+
+
+def assemble_row(row: Row, out: str) -> dict[str, Any]:
+    """Whole-mission rollouts of a finished row and its bundle; stored as ``row.json``."""
+    from workers.pipeline import assemble
+    from workers.training import TrainResult
+
+    folder = Path(out) / row.folder
+    mission, plan, jobs = row_jobs(row, Path(out))
+    results = [
+        TrainResult.from_json(
+            json.loads((folder / f"subtask_{j.subtask}" / "result.json").read_text())
+        )
+        for j in jobs
+    ]
+    t0 = time.monotonic()
+    done = assemble(mission, plan, results, folder / "bundle.zip")
+    evaluation = done.evaluation.to_json()
+    evaluation.pop("trails", None)
+    summary = {"evaluation": evaluation, "seconds": time.monotonic() - t0}
+    (folder / "row.json").write_text(json.dumps(summary))
+    return summary
+
+
+def run_rows(rows: list[Row], out: Path, jobs: int) -> None:
+    """Train every row's jobs, ``jobs`` at a time, then roll out the complete rows."""
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(["workers.training"])
+    planned = [(row, *row_jobs(row, out)) for row in rows]
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=context) as pool:
+        pending: dict[Future[dict[str, Any]], tuple[Row, int]] = {}
+        for row, _, _, row_specs in planned:
+            for spec in row_specs:
+                target = str(out / row.folder / f"subtask_{spec.subtask}")
+                pending[pool.submit(train_job, spec, target)] = (row, spec.subtask)
+        left = {row: sum(1 for r, _ in pending.values() if r == row) for row, *_ in planned}
+        rollouts: list[Future[dict[str, Any]]] = []
+        for future in as_completed(pending):
+            row, k = pending[future]
+            result = future.result()
+            final = result.get("final") or {}
+            print(
+                f"{row.folder} sub-task {k}: {result['steps']} steps ({result['stopped']}), "
+                f"success {final.get('success_rate', float('nan')):.1%}, "
+                f"{result['seconds']:.0f} s",
+                flush=True,
+            )
+            left[row] -= 1
+            if left[row] == 0 and row.subtasks is None and row.method != "g-rrt":
+                rollouts.append(pool.submit(assemble_row, row, str(out)))
+        for future in rollouts:
+            future.result()
+
+
+# ------------------------------------------------------------------------------------ report
+def row_figures(row: Row, out: Path) -> dict[str, Any] | None:
+    """What is on disk for ``row`` (None: not trained yet)."""
+    folder = out / row.folder
+    results = []
+    for path in sorted(folder.glob("subtask_*/result.json"), key=lambda p: int(p.parent.name[8:])):
+        k = int(path.parent.name[8:])
+        if row.subtasks is not None and row.method != "g-rrt" and k not in row.subtasks:
+            continue
+        results.append(json.loads(path.read_text()))
+    if not results:
+        return None
+    stored = folder / "row.json"
+    mission = json.loads(stored.read_text())["evaluation"] if stored.is_file() else None
+    plan = json.loads((folder / "plan.json").read_text())["plan"]
+    return {"results": results, "mission": mission, "n_subtasks": len(plan["subtasks"])}
+
+
+def _pct(x: float | None) -> str:
+    return "-" if x is None else f"{100 * x:.1f} %"
+
+
+def makespan(seconds: list[float], workers: int) -> float:
+    """Wall time of running jobs of these durations on ``workers`` processes, in the given
+    order, each job starting on the first free process (how the pool schedules them)."""
+    free = [0.0] * workers
+    for s in seconds:
+        k = free.index(min(free))
+        free[k] += s
+    return max(free)
+
+
+def table(rows: list[Row], out: Path, workers: int) -> str:
+    """Table I: one line per row, then medians over seeds of ours."""
+    header = (
+        "| task | robot | method | seed | sub-tasks | success per sub-task (200 trials) | "
+        "steps per sub-task | collisions | mission success (rollouts) | train s (sum) | "
+        f"wall s ({workers} proc.) |"
+    )
+    lines = [header, "|" + "---|" * 11]
+    for row in rows:
+        fig = row_figures(row, out)
+        mission = load_mission(row.mission, row)
+        if fig is None:
+            lines.append(
+                f"| {row.mission} | {mission.robot.model} | {row.method} | {row.seed} |"
+                " not run | | | | | | |"
+            )
+            continue
+        res = fig["results"]
+        finals = [r.get("final") or {} for r in res]
+        success = ", ".join(_pct(f.get("success_rate")) for f in finals)
+        collisions = ", ".join(_pct(f.get("collision_rate")) for f in finals)
+        steps = ", ".join(
+            f"{r['steps'] // 1000}k{'' if r['stopped'] == 'target' else '*'}" for r in res
+        )
+        seconds = [r["seconds"] for r in res]
+        which = (
+            "whole lasso"
+            if row.method == "g-rrt"
+            else ("all" if row.subtasks is None else "+".join(map(str, row.subtasks)))
+        )
+        ev = fig["mission"]
+        ms = "-" if ev is None else f"{_pct(ev['success_rate'])} ({ev['episodes']})"
+        lines.append(
+            f"| {row.mission} | {mission.robot.model} | {row.method} | {row.seed} | "
+            f"{which} of {fig['n_subtasks']} | {success} | {steps} | {collisions} | {ms} | "
+            f"{sum(seconds):.0f} | {makespan(seconds, workers):.0f} |"
+        )
+    lines.append("")
+    lines.append(
+        "`*`: the budget ran out before a periodic evaluation reached the target "
+        "(no early stop). Wall: the pool's schedule of the measured job times."
+    )
+    return "\n".join(lines)
+
+
+def medians(rows: list[Row], out: Path) -> str:
+    """Median over seeds per (mission, method), whole-mission rows only."""
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for row in rows:
+        fig = row_figures(row, out)
+        if fig is not None and row.subtasks is None and fig["mission"] is not None:
+            groups.setdefault((row.mission, row.method), []).append(fig)
+    lines = [
+        "| task | method | seeds | median sub-task success | worst sub-task success | "
+        "median steps to target | median mission success |",
+        "|" + "---|" * 7,
+    ]
+    for (mission, method), figs in groups.items():
+        rates = [
+            (f.get("final") or {}).get("success_rate", 0.0) for fig in figs for f in fig["results"]
+        ]
+        steps = [r["steps"] for fig in figs for r in fig["results"]]
+        whole = [fig["mission"]["success_rate"] for fig in figs]
+        lines.append(
+            f"| {mission} | {method} | {len(figs)} | {_pct(statistics.median(rates))} | "
+            f"{_pct(min(rates))} | {statistics.median(steps):.0f} | "
+            f"{_pct(statistics.median(whole))} |"
+        )
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------------- overhead
+def overhead(steps: int, repeats: int) -> str:
+    """SAC steps per second on the bare dynamics against the car sub-task's NavEnv."""
+    import gymnasium as gym
+    import torch
+    from stable_baselines3 import SAC
+
+    from envs.robots import make_robot
+    from workers.training import hyperparameters, subtask_env
+
+    torch.set_num_threads(1)
+    row = Row("car-phi2-fin", "rrt", 0)
+    out = Path(os.environ.get("TMPDIR", "/tmp")) / "ltlnav-bench-overhead"
+    mission, plan, _ = row_jobs(row, out)
+    training = mission.training
+
+    class Bare(gym.Env[np.ndarray, np.ndarray]):
+        """The robot's dynamics alone, observation padded to the NavEnv's size."""
+
+        def __init__(self, size: int) -> None:
+            world = mission.build_world()  # the robot's own collision test is part of it
+            self.robot = make_robot(mission.robot.model, world, mission.robot.radius)
+            self.start = np.asarray(plan.start, dtype=float)
+            self.rng = np.random.default_rng(0)
+            n = self.robot.action_dim
+            self.action_space = gym.spaces.Box(-1.0, 1.0, (n,), np.float32)
+            self.observation_space = gym.spaces.Box(-np.inf, np.inf, (size,), np.float32)
+            self.size, self.t = size, 0
+
+        def _obs(self) -> np.ndarray:
+            o = np.zeros(self.size, np.float32)
+            raw = np.asarray(self.robot.observation(), np.float32)[: self.size]
+            o[: raw.size] = raw
+            return o
+
+        def reset(self, *, seed: int | None = None, options: Any = None) -> Any:
+            super().reset(seed=seed)
+            self.robot.reset(self.start, self.rng)
+            self.t = 0
+            return self._obs(), {}
+
+        def step(self, action: np.ndarray) -> Any:
+            self.robot.step(action)
+            self.t += 1
+            return self._obs(), 0.0, False, self.t >= 400, {}
+
+    nav = subtask_env(mission, plan, training, 0)
+    bare = Bare(int(np.prod(nav.observation_space.shape or (0,))))
+    params = hyperparameters(training, bare.robot.action_dim)
+    rates: dict[str, float] = {"bare": 0.0, "env": 0.0}
+    for _ in range(repeats):
+        for name, env in (("bare", bare), ("env", nav)):
+            model = SAC("MlpPolicy", env, seed=0, device="cpu", verbose=0, **params)
+            t0 = time.perf_counter()
+            model.learn(steps)
+            rates[name] = max(rates[name], steps / (time.perf_counter() - t0))
+    share = 100.0 * (1.0 - rates["env"] / rates["bare"])
+    return (
+        f"| env | SAC steps/s (best of {repeats}, {steps} steps) |\n|---|---|\n"
+        f"| bare unicycle dynamics | {rates['bare']:.0f} |\n"
+        f"| NavEnv car sub-task 0 (rrt) | {rates['env']:.0f} |\n\n"
+        f"env + reward share of the training time: {share:.1f} % (target <= 10 %)"
+    )
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument("--preset", default="table1", choices=sorted(PRESETS))
+    p.add_argument("--rows", nargs="*", type=Row.parse, help="mission:method:seed[:subs[:steps]]")
+    p.add_argument("--out", default=str(ROOT / "var" / "bench" / "train"), help="run folders")
+    p.add_argument("--jobs", type=int, default=2, help="training processes at once")
+    p.add_argument("--report", action="store_true", help="print the table of what is on disk")
+    p.add_argument("--overhead", action="store_true", help="env cost against raw SB3 instead")
+    p.add_argument("--overhead-steps", type=int, default=3000)
+    args = p.parse_args(argv)
+    if args.overhead:
+        print(overhead(args.overhead_steps, 3))
+        return
+    rows = args.rows or PRESETS[args.preset]
+    out = Path(args.out)
+    if not args.report:
+        run_rows(rows, out, args.jobs)
+    print(table(rows, out, args.jobs))
+    print()
+    print(medians(rows, out))
+
+
+if __name__ == "__main__":
+    main()
