@@ -13,6 +13,7 @@ run twice. The database result backend polls ``AsyncResult.get()`` every 0.5 s u
 
 from __future__ import annotations
 
+import importlib
 import logging
 import os
 import threading
@@ -32,6 +33,9 @@ QUEUE = "ltlnav"
 """The one queue of the service's tasks."""
 
 TASK_MODULES = ["workers.tasks"]
+
+PRELOAD = ("workers.training", "workers.bundle", "planner.plot")
+"""Modules a worker imports before its pool forks (torch, stable-baselines3, matplotlib)."""
 
 
 class LtlnavCelery(Celery):
@@ -181,9 +185,8 @@ def _on_worker_init(sender: Any = None, **_: Any) -> None:
         prepare_dirs(worker_app.settings)
         # Import torch and stable-baselines3 once, before the pool forks: a training task
         # then starts at once instead of after seconds of imports in every process.
-        import planner.plot  # noqa: F401
-        import workers.bundle  # noqa: F401
-        import workers.training  # noqa: F401
+        for module in PRELOAD:
+            importlib.import_module(module)
 
 
 @worker_ready.connect

@@ -159,3 +159,4 @@ def test_a_job_past_its_attempts_fails(settings: Settings) -> None:
     assert train_step(settings, mission_id, 0, Recorder(), in_chord=True) == "failed"
     mission, jobs, _, _ = load(settings, mission_id)
     assert mission.status == MissionStatus.failed and "gave up after" in mission.reason
+    assert jobs[0].status == JobStatus.failed
