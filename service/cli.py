@@ -280,6 +280,157 @@ def migrate(
     typer.echo(f"database {shown} at revision {current_revision(url)}")
 
 
+@app.command("serve")
+def serve(
+    host: Annotated[
+        str | None, typer.Option(help="Address to bind (default LTLNAV_HOST, 127.0.0.1).")
+    ] = None,
+    port: Annotated[
+        int | None, typer.Option(min=1, max=65535, help="Port (default LTLNAV_PORT, 8000).")
+    ] = None,
+    workers: Annotated[
+        int | None,
+        typer.Option(
+            "--workers", min=1, help="Training processes of the embedded worker (default: cores)."
+        ),
+    ] = None,
+    no_worker: Annotated[
+        bool, typer.Option("--no-worker", help="Serve the API only (workers run elsewhere).")
+    ] = False,
+) -> None:
+    """Migrate the database, then run the API and one embedded worker until Ctrl-C."""
+    from service.serve import serve as run
+    from service.settings import Settings
+
+    settings = Settings()
+    run(
+        settings,
+        host=host or settings.host,
+        port=port or settings.port,
+        worker=not no_worker,
+        concurrency=workers,
+        say=lambda line: typer.echo(f"ltlnav: {line}", err=True),
+    )
+
+
+@app.command("worker")
+def worker(
+    concurrency: Annotated[
+        int | None,
+        typer.Option("--concurrency", "-c", min=1, help="Training processes (default: cores)."),
+    ] = None,
+    loglevel: Annotated[str, typer.Option(help="Celery log level.")] = "INFO",
+) -> None:
+    """Run a Celery worker for the configured broker and database (migrate them first)."""
+    from service.settings import Settings
+    from workers.celery_app import run_worker
+
+    run_worker(Settings(), concurrency=concurrency, loglevel=loglevel)
+
+
+@app.command("submit")
+def submit(
+    mission: Annotated[
+        str, typer.Argument(help="Mission file (YAML or JSON), or the name of an example.")
+    ],
+    url: Annotated[
+        str | None,
+        typer.Option(envvar="LTLNAV_URL", help="The service (default http://LTLNAV_HOST:PORT)."),
+    ] = None,
+    api_key: Annotated[
+        str | None, typer.Option("--api-key", envvar="LTLNAV_API_KEY", help="Bearer API key.")
+    ] = None,
+    wait: Annotated[
+        bool, typer.Option("--wait", help="Follow the progress, then download the bundle.")
+    ] = False,
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", help="Folder for bundle.zip (default runs/<mission name>)."),
+    ] = None,
+    poll: Annotated[float, typer.Option(min=0.1, help="Seconds between progress polls.")] = 1.0,
+) -> None:
+    """Submit a mission to the service; with --wait print its progress until it ends and
+    download its bundle (exit code 1 when it fails or is cancelled)."""
+    from service.client import ServiceClient, ServiceError
+    from service.serve import display_host
+    from service.settings import Settings
+    from workers.mission_errors import read_document
+
+    path = Path(mission)
+    if path.exists() or path.suffix:
+        try:
+            document = read_document(path)
+        except ValueError as error:
+            typer.echo(f"error: {path}: {error}", err=True)
+            raise typer.Exit(EXIT_BAD_INPUT) from error
+    else:
+        document = {"example": mission}
+    if url is None:
+        settings = Settings()
+        url = f"http://{display_host(settings.host)}:{settings.port}"
+    with ServiceClient(url, api_key) as client:
+        try:
+            created = client.submit(document)
+        except ServiceError as error:
+            typer.echo(f"error: {error}", err=True)
+            bad_input = error.status is not None and 400 <= error.status < 500
+            raise typer.Exit(EXIT_BAD_INPUT if bad_input else 1) from error
+        mission_id = created["id"]
+        typer.echo(f"mission {mission_id} {created['status']}: {url}/missions/{mission_id}")
+        if not wait:
+            return
+        try:
+            final = client.wait(mission_id, _ProgressPrinter(), poll_seconds=poll)
+        except ServiceError as error:
+            typer.echo(f"error: {error}", err=True)
+            raise typer.Exit(1) from error
+        except KeyboardInterrupt:
+            typer.echo(f"stopped waiting; mission {mission_id} goes on in the service", err=True)
+            raise typer.Exit(130) from None
+        if final["status"] != "done":
+            typer.echo(f"mission {final['status']}: {final.get('reason') or 'no reason given'}")
+            raise typer.Exit(1)
+        target = (out or Path("runs") / final["name"]) / "bundle.zip"
+        try:
+            client.download_bundle(mission_id, target)
+        except ServiceError as error:
+            typer.echo(f"error: {error}", err=True)
+            raise typer.Exit(1) from error
+    evaluation = final.get("evaluation") or {}
+    if "success_rate" in evaluation:
+        typer.echo(
+            f"mission success rate {100 * evaluation['success_rate']:.1f} % over "
+            f"{evaluation.get('episodes', '?')} rollouts"
+        )
+    typer.echo(f"bundle written to {target}")
+
+
+class _ProgressPrinter:
+    """Prints a mission's status when it changes, and a sub-task's progress when its status
+    changes or it passes another tenth of its budget."""
+
+    def __init__(self) -> None:
+        self.shown: dict[str, Any] = {}
+
+    def __call__(self, mission: dict[str, Any]) -> None:
+        self._line("status", mission["status"], f"status: {mission['status']}")
+        for job in mission.get("jobs", []):
+            rate = job.get("success_rate")
+            eta = job.get("eta_seconds")
+            text = (
+                f"  sub-task {job['index']}: {job['status']}, {job['steps_done']}/{job['budget']}"
+                f" steps, success {'-' if rate is None else f'{100 * rate:.0f} %'}"
+                + ("" if eta is None or job["status"] != "running" else f", ETA {eta:.0f} s")
+            )
+            tenth = 10 * job["steps_done"] // max(job["budget"], 1)
+            self._line(f"job{job['index']}", (job["status"], tenth), text)
+
+    def _line(self, key: str, value: Any, text: str) -> None:
+        if self.shown.get(key) != value:
+            self.shown[key] = value
+            typer.echo(text)
+
+
 def main() -> None:
     """Console-script entry point."""
     try:

@@ -1,0 +1,105 @@
+"""``ltlnav serve``: the API (uvicorn) in this process and one embedded Celery worker in a
+child process, both stopped cleanly on Ctrl-C or SIGTERM."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import subprocess
+import sys
+import threading
+from collections.abc import Callable
+from types import FrameType
+
+import uvicorn
+
+from service.db import upgrade
+from service.settings import Settings
+
+WORKER_GRACE_SECONDS = 10.0
+"""How long a stopping worker may finish its running tasks before it is shut down cold
+(their jobs resume from their checkpoints later)."""
+
+Say = Callable[[str], None]
+
+
+def display_host(host: str) -> str:
+    """A host a browser can open for ``host`` (the wildcard addresses become localhost)."""
+    return "127.0.0.1" if host in ("0.0.0.0", "::", "") else host
+
+
+def start_worker(concurrency: int | None) -> subprocess.Popen[bytes]:
+    """``ltlnav worker`` as a child in its own session (a terminal's Ctrl-C reaches only us;
+    we stop it in order)."""
+    command = [sys.executable, "-m", "service.cli", "worker"]
+    if concurrency is not None:
+        command += ["--concurrency", str(concurrency)]
+    return subprocess.Popen(command, start_new_session=True)
+
+
+def stop_worker(worker: subprocess.Popen[bytes], say: Say) -> int | None:
+    """Warm shutdown (SIGTERM), then cold (SIGQUIT), then SIGKILL of its process group."""
+    if worker.poll() is not None:
+        return worker.returncode
+    say(f"stopping the worker (up to {WORKER_GRACE_SECONDS:g} s for running tasks)")
+    for sig, wait in ((signal.SIGTERM, WORKER_GRACE_SECONDS), (signal.SIGQUIT, 5.0)):
+        worker.send_signal(sig)
+        try:
+            return worker.wait(wait)
+        except subprocess.TimeoutExpired:
+            continue
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(worker.pid, signal.SIGKILL)
+    return worker.wait()
+
+
+def _watch(worker: subprocess.Popen[bytes], stopping: threading.Event, say: Say) -> None:
+    code = worker.wait()
+    if not stopping.is_set():
+        say(
+            f"warning: the embedded worker exited (code {code}); missions wait in the queue "
+            "until a worker runs (`ltlnav worker`)"
+        )
+
+
+def _terminate(signum: int, frame: FrameType | None) -> None:
+    raise KeyboardInterrupt
+
+
+def serve(
+    settings: Settings,
+    host: str,
+    port: int,
+    worker: bool,
+    concurrency: int | None,
+    say: Say,
+) -> None:
+    """Migrate, start the worker (unless ``worker`` is False) and serve the API until a
+    signal; then stop both."""
+    from service.api.app import create_app
+
+    settings.make_dirs()
+    upgrade(settings.database_url)
+    app = create_app(settings)
+    base = f"http://{display_host(host)}:{port}"
+    if not settings.api_keys:
+        say("the API is open: no API keys are configured (set LTLNAV_API_KEYS to require them)")
+    child = start_worker(concurrency) if worker else None
+    stopping = threading.Event()
+    if child is not None:
+        say(f"worker started (pid {child.pid}, concurrency {concurrency or settings.concurrency})")
+        threading.Thread(target=_watch, args=(child, stopping, say), daemon=True).start()
+    say(f"dashboard: {base}/   API docs: {base}/docs   data: {settings.data_dir}")
+    previous = signal.signal(signal.SIGTERM, _terminate)
+    try:
+        uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level="info")).run()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        stopping.set()
+        signal.signal(signal.SIGTERM, previous)
+        if child is not None:
+            code = stop_worker(child, say)
+            say(f"worker stopped (exit code {code})")
+    say("stopped")
