@@ -161,6 +161,18 @@ def test_urls_point_at_the_compose_servers(
     assert settings.artifact_dir.is_relative_to(settings.data_dir)
 
 
+def test_commands_exist() -> None:
+    from typer.main import get_command
+
+    from service.cli import app
+
+    group = get_command(app)
+    assert {"migrate", "worker", "serve"} <= set(group.commands)  # type: ignore[attr-defined]
+    from service.api import app as api_module
+
+    assert callable(api_module.create_app), "service.api.app:app, the api service's command"
+
+
 def test_dockerfile() -> None:
     text = (ROOT / "Dockerfile").read_text()
     base = re.search(r"^FROM python:(\d+)\.(\d+)", text, re.MULTILINE)

@@ -1,8 +1,8 @@
 """The dashboard in a real headless Chromium (Debian's, driven by Playwright; never downloaded).
 
 Quick tests run the real API in a thread with a recording ``enqueue`` (no worker); the slow
-one starts the API (uvicorn) and a real Celery worker process on the embedded defaults and
-takes a tiny example mission from the submit form to the downloaded bundle.
+one starts ``ltlnav serve`` (API + embedded Celery worker, SQLite + embedded broker) and takes
+a tiny example mission from the submit form to the downloaded bundle.
 """
 
 from __future__ import annotations
@@ -190,12 +190,10 @@ def clean_environment(**extra: str) -> dict[str, str]:
     return env
 
 
-def server_commands(port: int) -> list[list[str]]:
-    """The real service: the API under uvicorn and a Celery worker (``run_worker``)."""
-    return [
-        [sys.executable, "-m", "uvicorn", "service.api.app:app", "--port", str(port)],
-        [sys.executable, "-c", "from workers.celery_app import run_worker; run_worker()"],
-    ]
+def server_command(port: int) -> list[str]:
+    """``ltlnav serve``: migrations, the API and an embedded Celery worker (2 processes)."""
+    ltlnav = str(Path(sys.executable).with_name("ltlnav"))
+    return [ltlnav, "serve", "--host", "127.0.0.1", "--port", str(port), "--workers", "2"]
 
 
 def stop(process: subprocess.Popen[bytes]) -> None:
@@ -209,7 +207,7 @@ def stop(process: subprocess.Popen[bytes]) -> None:
 
 @pytest.fixture
 def served(tmp_path: Path) -> Iterator[str]:
-    """The API and a worker (embedded defaults, data under ``tmp_path``) on a free port."""
+    """``ltlnav serve`` on the embedded defaults, data under ``tmp_path``, on a free port."""
     examples = tmp_path / "examples"
     write_example(examples, n_timesteps=300, eval_freq=100)
     port = free_port()
@@ -218,26 +216,20 @@ def served(tmp_path: Path) -> Iterator[str]:
         LTLNAV_DATA_DIR=str(tmp_path / "data"),
         LTLNAV_EXAMPLES_DIR=str(examples),
         LTLNAV_HEARTBEAT_SECONDS="0.2",
-        LTLNAV_WORKER_CONCURRENCY="2",
     )
-    upgrade(Settings(data_dir=tmp_path / "data").database_url)
-    processes: list[subprocess.Popen[bytes]] = []
     url = f"http://127.0.0.1:{port}"
+    with log_path.open("w") as log:
+        process = subprocess.Popen(
+            server_command(port),
+            env=env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
     try:
-        with log_path.open("w") as log:
-            for command in server_commands(port):
-                processes.append(
-                    subprocess.Popen(
-                        command,
-                        env=env,
-                        stdout=log,
-                        stderr=subprocess.STDOUT,
-                        start_new_session=True,
-                    )
-                )
         deadline = time.monotonic() + 60
         while True:
-            assert all(p.poll() is None for p in processes), f"exited:\n{log_path.read_text()}"
+            assert process.poll() is None, f"ltlnav serve exited:\n{log_path.read_text()}"
             assert time.monotonic() < deadline, f"no /healthz after 60 s:\n{log_path.read_text()}"
             try:
                 if httpx.get(f"{url}/healthz", timeout=2).status_code == 200:
@@ -247,8 +239,7 @@ def served(tmp_path: Path) -> Iterator[str]:
             time.sleep(0.3)
         yield url
     finally:
-        for process in processes:
-            stop(process)
+        stop(process)
         print(log_path.read_text()[-4000:])
 
 
