@@ -34,8 +34,9 @@ QUEUE = "ltlnav"
 
 TASK_MODULES = ["workers.tasks"]
 
-PRELOAD = ("workers.training", "workers.bundle", "planner.plot")
-"""Modules a worker imports before its pool forks (torch, stable-baselines3, matplotlib)."""
+PRELOAD = ("workers.training", "workers.bundle", "planner.plot", "torch._dynamo")
+"""Modules a worker imports before its pool forks: torch, stable-baselines3, matplotlib, and
+torch._dynamo, which the first optimizer of every process would import (about 5 s)."""
 
 
 class LtlnavCelery(Celery):
