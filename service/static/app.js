@@ -484,6 +484,9 @@ function renderMission(mission, parts, image, bundle) {
       ` · updated ${when(mission.updated_at)}`),
     h("p", {}, h("code", {}, mission.task)),
     mission.reason ? h("p", { class: "error-text", id: "mission-reason" }, mission.reason) : null,
+    mission.cancel_requested && ACTIVE.has(mission.status)
+      ? h("p", { class: "muted" }, "Cancel requested: running sub-tasks stop at their next check.")
+      : null,
   ].filter(Boolean));
   const cancelButton = h("button", { type: "button", class: "danger", id: "cancel",
     disabled: !ACTIVE.has(mission.status) },

@@ -124,7 +124,9 @@ def quick_settings(tmp_path: Path, **extra: Any) -> Settings:
 
 
 @pytest.mark.timeout(120)
-def test_list_renders_and_bad_submission_shows_the_api_error(tmp_path: Path, page: Any) -> None:
+def test_submit_cancel_list_and_bad_submissions_show_the_api_error(
+    tmp_path: Path, page: Any
+) -> None:
     sent: list[str] = []
     with ThreadServer(quick_settings(tmp_path), sent.append) as server:
         page.goto(server.url + "/")
@@ -153,12 +155,16 @@ def test_list_renders_and_bad_submission_shows_the_api_error(tmp_path: Path, pag
         assert page.is_disabled("#download")
         assert sent == [mission_id]
 
+        page.click("#cancel")
+        page.wait_for_selector("#mission-status .badge.cancelled")
+        assert page.is_disabled("#cancel")
+
         page.click("text=← all missions")
         row = page.locator("#missions tbody tr")
         row.first.wait_for()
         assert row.count() == 1
         assert TINY["name"] in row.first.inner_text()
-        assert "queued" in row.first.locator(".badge").inner_text()
+        assert "cancelled" in row.first.locator(".badge").inner_text()
 
 
 @pytest.mark.timeout(120)
