@@ -531,6 +531,8 @@ def _claim_mission(
         .execution_options(synchronize_session=False)
     )
     won = getattr(outcome, "rowcount", 0) == 1
+    if won:
+        session.refresh(mission)
     if won and to is not None:
         reason = f"{status.value} stalled: its worker stopped"
         record_event(session, mission.id, "status", {"status": to.value, "reason": reason})
@@ -570,11 +572,13 @@ def claim_queued_missions(session: Session, older_than_seconds: float) -> list[M
 
 
 def claim_assemblies(session: Session, idle_seconds: float) -> list[Mission]:
-    """``missions_ready_to_assemble``, each claimed for one reconciler (as above)."""
+    """``missions_ready_to_assemble`` untouched for ``idle_seconds``, each claimed for one
+    reconciler (as above): sent once per ``idle_seconds`` at most."""
+    cutoff = utcnow() - timedelta(seconds=idle_seconds)
     return [
         m
         for m in missions_ready_to_assemble(session, idle_seconds)
-        if _claim_mission(session, m, MissionStatus.training)
+        if m.updated_at < cutoff and _claim_mission(session, m, MissionStatus.training)
     ]
 
 

@@ -31,7 +31,7 @@ REDIS_DB = 13
 """The Redis database the tests use (flushed before and after)."""
 REDIS_URL = f"redis://127.0.0.1:6379/{REDIS_DB}"
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(240)]
+pytestmark = pytest.mark.timeout(240)
 
 FAST = {
     "LTLNAV_HEARTBEAT_SECONDS": "0.3",
@@ -182,6 +182,7 @@ def service(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Service]
                 connection.execute(text(f"TRUNCATE {tables} RESTART IDENTITY CASCADE"))
 
 
+@pytest.mark.slow
 def test_a_tiny_mission_reaches_done_with_a_bundle(service: Service) -> None:
     service.start_worker()
     mission_id = service.submit()
@@ -197,6 +198,7 @@ def test_a_tiny_mission_reaches_done_with_a_bundle(service: Service) -> None:
         assert [point.steps for point in curves[job.index]] == [100, 200]
 
 
+@pytest.mark.slow
 def test_a_sigkilled_worker_is_replaced_and_jobs_resume_from_checkpoints(
     service: Service,
 ) -> None:
@@ -225,3 +227,9 @@ def test_a_sigkilled_worker_is_replaced_and_jobs_resume_from_checkpoints(
             assert job.attempts >= 2 and job.result["resumed_from"] >= at[job.index]
         else:  # not started when the worker died: trained once
             assert job.attempts == 1 and job.result["resumed_from"] == 0
+
+
+def test_broker_health_on_redis(redis_url: str, tmp_path: Path) -> None:
+    from workers.celery_app import broker_ok
+
+    assert broker_ok(Settings(data_dir=tmp_path, broker_url=redis_url))
