@@ -33,9 +33,9 @@ browser:
 	      || echo "warning: could not install chromium; the dashboard browser test will skip"; \
 	  else echo "warning: chromium missing and not root; the dashboard browser test will skip"; fi; }
 
+# The API and one worker on SQLite + an embedded broker under $(DATA_DIR); Ctrl-C stops both.
 run: install
-	mkdir -p $(DATA_DIR)
-	$(BIN)/ltlnav plan $(EXAMPLE) --json $(DATA_DIR)/plan.json --plot $(DATA_DIR)/plan.png
+	LTLNAV_DATA_DIR=$(DATA_DIR) $(BIN)/ltlnav serve
 
 lint: install
 	$(BIN)/ruff check .
