@@ -4,17 +4,22 @@ the follow-up tasks recorded instead of sent."""
 from __future__ import annotations
 
 import json
+import threading
+import time
 from collections.abc import Sequence
+from datetime import timedelta
 from pathlib import Path
 from typing import Any
 
 import pytest
+from sqlalchemy import update
 
 from service import repository
 from service.db import Database, upgrade
-from service.models import JobStatus, MissionStatus
+from service.models import Job, JobStatus, MissionStatus, utcnow
 from service.settings import Settings
 from tests.workers.missions import TINY, tiny_mission
+from workers.progress import JobMonitor
 from workers.steps import assemble_step, plan_step, train_step
 
 pytestmark = pytest.mark.timeout(120)
@@ -160,3 +165,62 @@ def test_a_job_past_its_attempts_fails(settings: Settings) -> None:
     mission, jobs, _, _ = load(settings, mission_id)
     assert mission.status == MissionStatus.failed and "gave up after" in mission.reason
     assert jobs[0].status == JobStatus.failed
+
+
+def test_cancel_during_training_stops_the_job_and_keeps_its_checkpoint(
+    settings: Settings,
+) -> None:
+    budget = 5000
+    doc = tiny_mission(n_timesteps=budget, eval_freq=100).model_dump(mode="json")
+    mission_id = submit(settings, doc)
+    plan_step(settings, mission_id, Recorder())
+    outcome: list[str] = []
+    thread = threading.Thread(
+        target=lambda: outcome.append(train_step(settings, mission_id, 0, Recorder(), True))
+    )
+    thread.start()
+    deadline = time.monotonic() + 60
+    while load(settings, mission_id)[3][0] is None:  # until a checkpoint is recorded
+        assert time.monotonic() < deadline and thread.is_alive()
+        time.sleep(0.05)
+    with Database(settings.database_url).session() as session:
+        repository.request_cancel(session, mission_id)
+    thread.join(timeout=30)
+    assert outcome == ["cancelled"]
+    mission, jobs, _, saved = load(settings, mission_id)
+    assert mission.status == MissionStatus.cancelled
+    assert jobs[0].status == JobStatus.cancelled and 0 < jobs[0].steps_done < budget
+    assert {job.status for job in jobs[1:]} == {JobStatus.cancelled}
+    assert Path(saved[0].path).is_file()
+
+
+def test_a_job_handed_to_another_worker_stops_writing(settings: Settings) -> None:
+    mission_id = submit(settings)
+    plan_step(settings, mission_id, Recorder())
+    db = Database(settings.database_url)
+    with db.session() as session:
+        job = repository.get_job(session, mission_id, 0)
+        assert job is not None
+        repository.claim_job(session, job.id, "old-worker")
+    monitor = JobMonitor(db, mission_id, job.id, "old-worker", Path(job.out_dir), 0.01)
+    monitor.on_progress(0, None, 200)
+    time.sleep(0.02)
+    monitor.check()
+    assert not monitor.should_stop()
+    with db.session() as session:  # the reconciler gave the job to another worker
+        session.execute(
+            update(Job)
+            .where(Job.id == job.id)
+            .values(worker="new-worker", heartbeat_at=utcnow() - timedelta(minutes=1))
+        )
+    time.sleep(0.02)
+    monitor.check()
+    assert monitor.should_stop()
+    monitor.on_progress(50, 0.5, 200)
+    with db.session() as session:
+        job = repository.get_job(session, mission_id, 0)
+        assert (
+            job is not None
+            and job.steps_done == 0
+            and job.heartbeat_at < utcnow() - timedelta(seconds=30)
+        )
