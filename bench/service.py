@@ -1,8 +1,9 @@
 """Service benchmark: API latency under load, time to the first training step, worker scaling.
 
 Run with ``.venv/bin/python bench/service.py`` (embedded SQLite + SQLAlchemy broker) or with
-``--redis redis://127.0.0.1:6379/0 --postgres postgresql://postgres@127.0.0.1:5432/DB`` (the
-database must exist; it is migrated). Starts its own ``ltlnav serve`` / ``ltlnav worker``
+``--redis redis://127.0.0.1:6379/N --postgres postgresql://postgres@127.0.0.1:5432`` (Redis
+databases N and N+1 are emptied before each phase; each phase creates and drops its own
+PostgreSQL database on that server). Starts its own ``ltlnav serve`` / ``ltlnav worker``
 processes on free ports with their data under a temporary directory, and prints one table.
 
 1. ``POST /missions`` latency (sequential submissions, API without a worker: missions queue).
@@ -97,8 +98,9 @@ class Layout:
             LTLNAV_HEARTBEAT_SECONDS=str(HEARTBEAT),
         )
         if self.redis:
-            base = self.redis.rsplit("/", 1)[0]
-            env.update(LTLNAV_BROKER_URL=f"{base}/0", LTLNAV_RESULT_BACKEND=f"{base}/1")
+            base, _, db = self.redis.rpartition("/")
+            results = f"{base}/{int(db) + 1}" if db.isdigit() else self.redis
+            env.update(LTLNAV_BROKER_URL=self.redis, LTLNAV_RESULT_BACKEND=results)
         if self.postgres:
             env["DATABASE_URL"] = self.postgres
         return env
@@ -164,12 +166,40 @@ def worker(layout: Layout, concurrency: int) -> Iterator[None]:
         yield
 
 
-def make_layout(parent: Path, name: str, args: argparse.Namespace) -> Layout:
+@contextmanager
+def phase_layout(parent: Path, name: str, args: argparse.Namespace) -> Iterator[Layout]:
+    """A fresh state for one phase: a data directory, and with the server options a new
+    PostgreSQL database (dropped afterwards) and emptied Redis databases."""
     root = parent / name
     (root / "examples").mkdir(parents=True)
     mission = bench_mission(args.timesteps)
     (root / "examples" / f"{EXAMPLE}.json").write_text(json.dumps(mission))
-    return Layout(root, args.redis, args.postgres)
+    database = None
+    if args.postgres:
+        from sqlalchemy import create_engine, text
+
+        from service.settings import normalise_database_url
+
+        server = normalise_database_url(args.postgres.rstrip("/"))
+        database = f"ltlnav_bench_{name.replace('-', '_')}_{os.getpid()}"
+        admin = create_engine(f"{server}/postgres", isolation_level="AUTOCOMMIT")
+        with admin.connect() as connection:
+            connection.execute(text(f'CREATE DATABASE "{database}"'))
+        database = f"{server}/{database}"
+    if args.redis:
+        import redis
+
+        layout_env = Layout(root, args.redis, None).env()
+        for url in (layout_env["LTLNAV_BROKER_URL"], layout_env["LTLNAV_RESULT_BACKEND"]):
+            redis.Redis.from_url(url).flushdb()
+    try:
+        yield Layout(root, args.redis, database)
+    finally:
+        if database is not None:
+            name_only = database.rsplit("/", 1)[1]
+            with admin.connect() as connection:
+                connection.execute(text(f'DROP DATABASE IF EXISTS "{name_only}" WITH (FORCE)'))
+            admin.dispose()
 
 
 def percentiles(samples: list[float]) -> tuple[float, float, float]:
@@ -347,8 +377,8 @@ def main() -> None:
     parser.add_argument("--timesteps", type=int, default=3000, help="budget per sub-task")
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="K to compare")
     parser.add_argument("--skip-scaling", action="store_true", help="latency only")
-    parser.add_argument("--redis", help="Redis URL for broker (db 0) and results (db 1)")
-    parser.add_argument("--postgres", help="PostgreSQL URL of an existing database")
+    parser.add_argument("--redis", help="Redis URL of the broker (.../N); results in db N+1")
+    parser.add_argument("--postgres", help="PostgreSQL server URL (no database name)")
     parser.add_argument("--limit", type=float, default=900.0, help="give up on a mission after")
     args = parser.parse_args()
 
@@ -356,8 +386,7 @@ def main() -> None:
     rows: list[tuple[str, str, str]] = []
     with tempfile.TemporaryDirectory(prefix="ltlnav-bench-") as tmp:
         parent = Path(tmp)
-        layout = make_layout(parent, "latency", args)
-        with api_server(layout) as url:
+        with phase_layout(parent, "latency", args) as layout, api_server(layout) as url:
             cold, posts, ids = submit_latency(url, args.submissions)
             single = read_latency(url, ids, args.submissions)
             gets = asyncio.run(poll_latency(url, ids, args.pollers, args.seconds))
@@ -391,8 +420,11 @@ def main() -> None:
 
         runs: list[MissionRun] = []
         for k in [] if args.skip_scaling else args.workers:
-            layout = make_layout(parent, f"workers-{k}", args)
-            with api_server(layout) as url, worker(layout, k):
+            with (
+                phase_layout(parent, f"workers-{k}", args) as layout,
+                api_server(layout) as url,
+                worker(layout, k),
+            ):
                 runs.append(run_mission(url, layout, k, args.limit))
             run = runs[-1]
             print(
