@@ -14,6 +14,7 @@ from sqlalchemy import create_engine, text, update
 from service import repository
 from service.db import Database
 from service.models import Job, JobStatus, Mission, MissionStatus, utcnow
+from service.repository import recovery
 from service.settings import Settings
 from workers.reconcile import clean_broker, reconcile_once
 
@@ -178,7 +179,7 @@ def test_two_reconcilers_at_once_send_each_stale_job_once(
         assert len(seen) == 3
         assert len(repository.reclaim_stale_jobs(first, settings.stale_after_seconds)) == 3
         first.commit()
-        monkeypatch.setattr(repository, "stale_jobs", lambda *_args, **_kw: seen)
+        monkeypatch.setattr(recovery, "stale_jobs", lambda *_args, **_kw: seen)
         assert repository.reclaim_stale_jobs(second, settings.stale_after_seconds) == []
 
 

@@ -1,0 +1,205 @@
+"""Missions: creation, key-scoped reads, the status life cycle, plan and result."""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from typing import Any
+
+from sqlalchemy import func, select, update
+from sqlalchemy.orm import Session
+
+from planner.errors import LtlnavError
+from service.models import (
+    Mission,
+    MissionStatus,
+    utcnow,
+)
+from service.repository.events import record_event
+
+FINAL_STATES = frozenset({MissionStatus.done, MissionStatus.failed, MissionStatus.cancelled})
+
+
+TRANSITIONS: dict[MissionStatus, frozenset[MissionStatus]] = {
+    MissionStatus.queued: frozenset({MissionStatus.planning}),
+    MissionStatus.planning: frozenset({MissionStatus.training}),
+    MissionStatus.training: frozenset({MissionStatus.evaluating}),
+    MissionStatus.evaluating: frozenset({MissionStatus.done}),
+}
+"""Forward moves; any non-final state may also go to failed or cancelled."""
+
+
+class TransitionError(LtlnavError):
+    """A status change the life cycle does not allow (e.g. out of a final state)."""
+
+
+class NotFoundError(LtlnavError):
+    """No mission or job with that id."""
+
+
+def hash_key(api_key: str | None) -> str | None:
+    """What ``Mission.owner`` stores for ``api_key``: its SHA-256 hex (None for the open API)."""
+    return None if api_key is None else hashlib.sha256(api_key.encode()).hexdigest()
+
+
+@dataclass(frozen=True)
+class MissionPage:
+    """One page of missions, newest first, and how many the key owns in all."""
+
+    items: list[Mission]
+    total: int
+    limit: int
+    offset: int
+
+
+def create_mission(
+    session: Session, name: str, document: dict[str, Any], api_key: str | None
+) -> Mission:
+    """A new queued mission owned by ``api_key`` (None: the open API)."""
+    mission = Mission(name=name, document=document, owner=hash_key(api_key))
+    session.add(mission)
+    session.flush()
+    record_event(session, mission.id, "status", {"status": mission.status.value, "reason": None})
+    return mission
+
+
+def get_mission(session: Session, mission_id: str) -> Mission | None:
+    """The mission with this id whoever owns it (for workers), with its jobs."""
+    return session.get(Mission, mission_id)
+
+
+def get_owned_mission(session: Session, mission_id: str, api_key: str | None) -> Mission | None:
+    """The mission if ``api_key`` created it, else None (the API answers 404 alike)."""
+    query = select(Mission).where(Mission.id == mission_id, _owned_by(api_key))
+    return session.scalars(query).one_or_none()
+
+
+def list_missions(
+    session: Session,
+    api_key: str | None,
+    limit: int = 20,
+    offset: int = 0,
+    status: MissionStatus | None = None,
+) -> MissionPage:
+    """The key's missions, newest first, ``limit`` from ``offset``; optionally one status."""
+    conditions = [_owned_by(api_key)]
+    if status is not None:
+        conditions.append(Mission.status == status)
+    query = (
+        select(Mission)
+        .where(*conditions)
+        .order_by(Mission.created_at.desc(), Mission.id.desc())
+        .limit(limit)
+        .offset(offset)
+    )
+    total = session.scalar(select(func.count()).select_from(Mission).where(*conditions)) or 0
+    return MissionPage(items=list(session.scalars(query)), total=total, limit=limit, offset=offset)
+
+
+def _owned_by(api_key: str | None) -> Any:
+    owner = hash_key(api_key)
+    return Mission.owner.is_(None) if owner is None else Mission.owner == owner
+
+
+def locked_mission(session: Session, mission_id: str) -> Mission:
+    """The mission, its row locked for the transaction (NotFoundError when there is none)."""
+    query = select(Mission).where(Mission.id == mission_id).with_for_update()
+    mission = session.scalars(query).one_or_none()
+    if mission is None:
+        raise NotFoundError(f"no mission {mission_id}")
+    return mission
+
+
+def set_status(
+    session: Session, mission_id: str, status: MissionStatus, reason: str | None = None
+) -> bool:
+    """Move a mission to ``status`` (with ``reason``; required for failed). Returns False when
+    it is already there (a redelivered task), raises ``TransitionError`` for a move the life
+    cycle forbids, e.g. out of done/failed/cancelled. Atomic on SQLite and PostgreSQL alike:
+    of two workers racing to move the same mission, one wins and the other sees its result."""
+    for _ in range(5):
+        current = session.scalar(select(Mission.status).where(Mission.id == mission_id))
+        if current is None:
+            raise NotFoundError(f"no mission {mission_id}")
+        if current == status:
+            return False
+        _check_transition(mission_id, current, status, reason)
+        # Compare-and-set: a concurrent change of status makes this match no row.
+        outcome = session.execute(
+            update(Mission)
+            .where(Mission.id == mission_id, Mission.status == current)
+            .values(status=status, reason=reason)
+        )
+        if getattr(outcome, "rowcount", 0) == 1:
+            record_event(session, mission_id, "status", {"status": status.value, "reason": reason})
+            return True
+    raise TransitionError(f"mission {mission_id}: its status keeps changing concurrently")
+
+
+def _check_transition(
+    mission_id: str, current: MissionStatus, status: MissionStatus, reason: str | None
+) -> None:
+    allowed = TRANSITIONS.get(current, frozenset())
+    if current not in FINAL_STATES:
+        allowed = allowed | {MissionStatus.failed, MissionStatus.cancelled}
+    if status not in allowed:
+        raise TransitionError(
+            f"mission {mission_id} cannot go from {current.value} to {status.value}"
+        )
+    if status == MissionStatus.failed and not reason:
+        raise TransitionError(f"mission {mission_id}: a failure needs a reason")
+
+
+def request_cancel(session: Session, mission_id: str) -> Mission:
+    """Raise the cancel flag the training hooks read (cooperative cancel). A mission in a
+    final state is returned unchanged."""
+    mission = locked_mission(session, mission_id)
+    if mission.status not in FINAL_STATES and not mission.cancel_requested:
+        mission.cancel_requested = True
+        session.flush()
+        record_event(session, mission_id, "cancel", {"requested": True})
+    return mission
+
+
+def cancel_requested(session: Session, mission_id: str) -> bool:
+    """Whether a cancel was requested (one cheap query, for the training hooks)."""
+    query = select(Mission.cancel_requested).where(Mission.id == mission_id)
+    return bool(session.scalar(query))
+
+
+def halted(session: Session, mission_id: str) -> bool:
+    """Whether a mission's running jobs should stop: cancel requested, or it already ended
+    (another job failed), or it is gone."""
+    query = select(Mission.cancel_requested, Mission.status).where(Mission.id == mission_id)
+    row = session.execute(query).one_or_none()
+    return row is None or bool(row[0]) or row[1] in FINAL_STATES
+
+
+def set_plan(
+    session: Session, mission_id: str, plan: dict[str, Any], plan_image: str | None = None
+) -> None:
+    """Store the plan summary (and the path of its picture)."""
+    mission = locked_mission(session, mission_id)
+    mission.plan = plan
+    mission.plan_image = plan_image
+    session.flush()
+
+
+def set_result(
+    session: Session, mission_id: str, evaluation: dict[str, Any], bundle_path: str
+) -> None:
+    """Store the whole-mission evaluation (``MissionEvaluation.to_json()``) and the bundle."""
+    mission = locked_mission(session, mission_id)
+    mission.evaluation = evaluation
+    mission.bundle_path = bundle_path
+    session.flush()
+
+
+def touch_mission(session: Session, mission_id: str) -> None:
+    """Refresh ``updated_at`` (the heartbeat of a mission being planned or assembled)."""
+    session.execute(
+        update(Mission)
+        .where(Mission.id == mission_id)
+        .values(updated_at=utcnow())
+        .execution_options(synchronize_session=False)
+    )
