@@ -203,7 +203,9 @@ function submitForm(examples) {
     message);
 }
 
-async function missionsView(gen, view) {
+const PAGE_SIZE = 50;
+
+async function missionsView(gen, view, offset) {
   const list = h("div", { id: "missions" }, h("p", { class: "muted" }, "loading…"));
   let examples = [];
   try {
@@ -218,7 +220,7 @@ async function missionsView(gen, view) {
   let shown = ""; // re-render only on change: keeps focus and selection in the table
   while (gen === generation) {
     try {
-      const page = await apiJson("/missions?limit=50&offset=0");
+      const page = await apiJson(`/missions?limit=${PAGE_SIZE}&offset=${offset}`);
       if (gen !== generation) return;
       const text = JSON.stringify(page);
       if (text !== shown) list.replaceChildren(missionTable(page));
@@ -233,16 +235,24 @@ async function missionsView(gen, view) {
 }
 
 function missionTable(page) {
-  if (page.items.length === 0) return h("p", { class: "muted", id: "no-missions" }, "No missions yet.");
+  if (page.items.length === 0) {
+    return h("p", { class: "muted", id: "no-missions" },
+      page.offset > 0 ? "No missions on this page." : "No missions yet.",
+      page.offset > 0 ? h("a", { href: "#/" }, " Newest missions") : null);
+  }
   const rows = page.items.map((m) => [
     h("a", { href: `#/missions/${m.id}` }, m.name),
-    badge(m.status),
+    h("div", {}, badge(m.status), m.reason ? h("div", { class: "reason" }, m.reason) : null),
     m.jobs ? progressBars(m.jobs) : h("span", { class: "muted" }, "–"),
     when(m.created_at),
   ]);
-  const shown = page.total > page.items.length ? ` (newest ${page.items.length} of ${page.total})` : "";
-  return h("div", {}, table(["Mission", "Status", "Sub-tasks", "Created"], rows),
-    shown ? h("p", { class: "muted" }, shown) : null);
+  const last = page.offset + page.items.length;
+  const pager = h("nav", { class: "row", "aria-label": "Mission pages" },
+    h("span", { class: "muted" }, `${page.offset + 1}–${last} of ${page.total}, newest first`),
+    page.offset > 0
+      ? h("a", { href: `#/?offset=${Math.max(0, page.offset - page.limit)}` }, "← newer") : null,
+    last < page.total ? h("a", { href: `#/?offset=${last}` }, "older →") : null);
+  return h("div", {}, table(["Mission", "Status", "Sub-tasks", "Created"], rows), pager);
 }
 
 // ---------------------------------------------------------------- mission view
@@ -513,8 +523,9 @@ function route() {
   showError("");
   const view = document.getElementById("view");
   const match = location.hash.match(/^#\/missions\/([^/]+)$/);
+  const offset = Number((location.hash.match(/[?&]offset=(\d+)/) || [])[1] || 0);
   if (match) missionView(gen, view, decodeURIComponent(match[1]));
-  else missionsView(gen, view);
+  else missionsView(gen, view, offset);
 }
 
 function setUpKey() {

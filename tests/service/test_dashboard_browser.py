@@ -168,6 +168,23 @@ def test_submit_cancel_list_and_bad_submissions_show_the_api_error(
 
 
 @pytest.mark.timeout(120)
+def test_missions_list_pages(tmp_path: Path, page: Any) -> None:
+    with ThreadServer(quick_settings(tmp_path), lambda _id: None) as server:
+        with httpx.Client(base_url=server.url) as client:
+            for _ in range(51):
+                client.post("/missions", json={"example": EXAMPLE}).raise_for_status()
+        page.goto(server.url + "/")
+        pager = page.locator("nav[aria-label='Mission pages']")
+        pager.filter(has_text="1–50 of 51").wait_for()
+        assert page.locator("#missions tbody tr").count() == 50
+        pager.get_by_text("older →").click()
+        pager.filter(has_text="51–51 of 51").wait_for()
+        assert page.locator("#missions tbody tr").count() == 1
+        pager.get_by_text("← newer").click()
+        pager.filter(has_text="1–50 of 51").wait_for()
+
+
+@pytest.mark.timeout(120)
 def test_api_key_field_sends_the_bearer_token(tmp_path: Path, page: Any) -> None:
     settings = quick_settings(tmp_path, api_keys=["s3cret"])
     with ThreadServer(settings, lambda _id: None) as server:
