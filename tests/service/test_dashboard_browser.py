@@ -185,6 +185,34 @@ def test_missions_list_pages(tmp_path: Path, page: Any) -> None:
 
 
 @pytest.mark.timeout(120)
+def test_a_failed_mission_shows_its_reason(tmp_path: Path, page: Any) -> None:
+    from service import repository
+    from service.db import Database
+    from service.models import MissionStatus
+
+    settings = quick_settings(tmp_path)
+    database = Database(settings.database_url)
+    reason = "infeasible: region 'b' cannot be reached"
+
+    def fail(mission_id: str) -> None:
+        with database.session() as session:
+            repository.set_status(session, mission_id, MissionStatus.failed, reason=reason)
+
+    try:
+        with ThreadServer(settings, fail) as server:
+            page.goto(server.url + "/")
+            page.select_option("#example", EXAMPLE)
+            page.click("#submit")
+            page.wait_for_selector("#mission-status .badge.failed")
+            assert page.inner_text("#mission-reason") == reason
+            assert page.is_disabled("#cancel") and page.is_disabled("#download")
+            page.click("text=← all missions")
+            page.locator("#missions .reason").filter(has_text=reason).wait_for()
+    finally:
+        database.dispose()
+
+
+@pytest.mark.timeout(120)
 def test_api_key_field_sends_the_bearer_token(tmp_path: Path, page: Any) -> None:
     settings = quick_settings(tmp_path, api_keys=["s3cret"])
     with ThreadServer(settings, lambda _id: None) as server:
