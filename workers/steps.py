@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 import os
 import socket
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any, Protocol
@@ -145,6 +145,15 @@ def failing(
             raise error from None
 
 
+def send(action: Callable[[], None], mission_id: str) -> None:
+    """Send follow-up work; a broker outage is logged, not fatal: the state is committed and
+    the reconciler sends what is still queued once the broker is back."""
+    try:
+        action()
+    except Exception:
+        log.exception("could not send the next task of mission %s; the reconciler will", mission_id)
+
+
 def _spec(document: dict[str, Any]) -> MissionSpec:
     return parse_mission(document)
 
@@ -170,6 +179,7 @@ def plan_step(settings: Settings, mission_id: str, dispatch: Dispatch) -> str:
         cancel_mission(db, mission_id)
         return "cancelled"
     folder = mission_dir(settings, mission_id)
+    indices: list[int] = []
     with (
         failing(db, mission_id, "planning"),
         mission_heartbeat(db, mission_id, settings.heartbeat_seconds),
@@ -189,6 +199,9 @@ def plan_step(settings: Settings, mission_id: str, dispatch: Dispatch) -> str:
         except PlanningError as error:
             fail_mission(db, mission_id, str(error))
             return "infeasible"
+        if not plan.subtasks:
+            fail_mission(db, mission_id, "the plan has no sub-task to train (no goal region)")
+            return "failed"
         image = folder / "plan.png"
         _plot(spec, plan, image)
         jobs = [
@@ -206,11 +219,13 @@ def plan_step(settings: Settings, mission_id: str, dispatch: Dispatch) -> str:
             indices = [row.index for row in rows]
             try:
                 repository.set_status(session, mission_id, MissionStatus.training)
-            except repository.TransitionError:
-                return "final"  # cancelled while planning
-        dispatch.training(mission_id, indices)
-        return "planned"
-    return "failed"
+            except repository.TransitionError:  # cancelled while planning
+                repository.cancel_queued_jobs(session, mission_id)
+                return "final"
+    if not indices:  # the guard recorded a failure
+        return "failed"
+    send(lambda: dispatch.training(mission_id, indices), mission_id)
+    return "planned"
 
 
 def _plot(spec: MissionSpec, plan: MissionPlan, out: Path) -> None:
@@ -246,10 +261,11 @@ def train_step(
         return "failed"
     if action == "done":
         if detail == "all" and not in_chord:
-            dispatch.assemble(mission_id)
+            send(lambda: dispatch.assemble(mission_id), mission_id)
         return "done"
     if action != "run":
         return action
+    stopped: str | None = None
     with failing(db, mission_id, f"sub-task {index}", job=(job_id, worker)):
         spec = _spec(document)
         job_spec = subtask_jobs(spec, plan_for(spec, mission_dir(settings, mission_id)))[index]
@@ -266,14 +282,16 @@ def train_step(
             else:
                 repository.finish_job(session, job_id, JobStatus.done, result.to_json())
             all_done = _all_done(session, mission_id)
-        if result.stopped == "cancelled":
-            if monitor.cancelled.is_set():
-                cancel_mission(db, mission_id)
-            return "cancelled"
-        if all_done and not in_chord:
-            dispatch.assemble(mission_id)
-        return "done"
-    return "failed"
+        stopped = result.stopped
+    if stopped is None:  # the guard recorded a failure
+        return "failed"
+    if stopped == "cancelled":
+        if monitor.cancelled.is_set():
+            cancel_mission(db, mission_id)
+        return "cancelled"
+    if all_done and not in_chord:
+        send(lambda: dispatch.assemble(mission_id), mission_id)
+    return "done"
 
 
 def _claim_training(

@@ -224,3 +224,17 @@ def test_a_job_handed_to_another_worker_stops_writing(settings: Settings) -> Non
             and job.steps_done == 0
             and job.heartbeat_at < utcnow() - timedelta(seconds=30)
         )
+
+
+class BrokerDown(Recorder):
+    def training(self, mission_id: str, indices: Sequence[int]) -> None:
+        raise ConnectionError("broker down")
+
+
+def test_a_broker_outage_after_planning_loses_nothing(settings: Settings) -> None:
+    mission_id = submit(settings)
+    assert plan_step(settings, mission_id, BrokerDown()) == "planned"
+    mission, jobs, _, _ = load(settings, mission_id)
+    # the state is committed: the reconciler sends the queued jobs once the broker is back
+    assert mission.status == MissionStatus.training and mission.reason is None
+    assert {job.status for job in jobs} == {JobStatus.queued}
