@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
+from celery.exceptions import SoftTimeLimitExceeded
 from sqlalchemy.orm import Session
 
 from planner.errors import LtlnavError, PlanningError
@@ -120,6 +121,11 @@ def describe(error: BaseException) -> str:
     """A user-facing reason: a known error's message, else its type and message."""
     if isinstance(error, LtlnavError):
         return str(error)
+    if isinstance(error, SoftTimeLimitExceeded):
+        return (
+            "ran past the task time limit (LTLNAV_TASK_SOFT_TIME_LIMIT): "
+            "lower the training budget or raise the limit"
+        )
     return f"{type(error).__name__}: {error}"
 
 

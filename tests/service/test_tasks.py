@@ -238,3 +238,14 @@ def test_a_broker_outage_after_planning_loses_nothing(settings: Settings) -> Non
     # the state is committed: the reconciler sends the queued jobs once the broker is back
     assert mission.status == MissionStatus.training and mission.reason is None
     assert {job.status for job in jobs} == {JobStatus.queued}
+
+
+def test_failure_reasons_name_the_problem() -> None:
+    from celery.exceptions import SoftTimeLimitExceeded
+
+    from planner.errors import PlanningError
+    from workers.steps import describe
+
+    assert describe(PlanningError("no path")) == "no path"
+    assert describe(KeyError("x")) == "KeyError: 'x'"
+    assert "time limit" in describe(SoftTimeLimitExceeded())
