@@ -15,7 +15,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable, Iterator
-from contextlib import AbstractContextManager, contextmanager
+from contextlib import AbstractContextManager, contextmanager, suppress
 from pathlib import Path
 
 import numpy as np
@@ -115,7 +115,11 @@ class JobMonitor:
         """The ``on_progress`` hook: throttled progress, new curve points and checkpoints."""
         first = self._curve_upto is None
         if first:
-            self._curve_upto = steps  # the resume point: later points will be redone
+            # The resume point: later points will be redone, and the evaluations file still
+            # holds those of the run that died: wait for this run to rewrite it.
+            self._curve_upto = steps
+            with suppress(FileNotFoundError):
+                self._npz_mtime = (self.out_dir / "evaluations.npz").stat().st_mtime
         now = time.monotonic()
         new_points = self._new_curve_points()
         new_checkpoints = self._new_checkpoints()
