@@ -345,12 +345,13 @@ def mission_rows(runs: list[MissionRun], timesteps: int) -> list[tuple[str, str,
     for run in runs:
         phases = ", ".join(f"{name} {seconds:.1f} s" for name, seconds in run.phases.items())
         trained = run.training_seconds
+        span = run.phases.get("evaluating", run.wall) - run.phases.get("training", 0.0)
         rows.append(
             (
                 f"  concurrency {run.concurrency}: status first seen at",
                 phases,
-                f"sub-task jobs {sum(trained):.1f} s in all "
-                f"({', '.join(f'{s:.1f}' for s in trained)})",
+                f"jobs {' + '.join(f'{s:.1f}' for s in trained)} = {sum(trained):.1f} s; "
+                f"{sum(trained) / max(span, 1e-9):.2f} running on average",
             )
         )
     for run in runs:
