@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 from celery import Celery
 from sqlalchemy import Engine, inspect, text
+from sqlalchemy.exc import DBAPIError
 
 from service import repository
 from service.db import make_engine
@@ -143,6 +144,8 @@ def reconcile_forever(app: LtlnavCelery, stop: threading.Event) -> None:
                 app.backend.cleanup()
                 if removed:
                     log.info("deleted %d consumed broker messages", removed)
+        except DBAPIError as error:  # database down or not migrated: no traceback each pass
+            log.warning("reconciliation failed (database): %s", error.orig)
         except Exception:
             log.exception(
                 "reconciliation failed; trying again in %.0f s", settings.reconcile_seconds

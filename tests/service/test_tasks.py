@@ -249,3 +249,16 @@ def test_failure_reasons_name_the_problem() -> None:
     assert describe(PlanningError("no path")) == "no path"
     assert describe(KeyError("x")) == "KeyError: 'x'"
     assert "time limit" in describe(SoftTimeLimitExceeded())
+
+
+def test_a_redelivered_task_leaves_a_running_job_alone(settings: Settings) -> None:
+    mission_id = submit(settings)
+    plan_step(settings, mission_id, Recorder())
+    with Database(settings.database_url).session() as session:
+        job = repository.get_job(session, mission_id, 0)
+        assert job is not None
+        assert repository.claim_job(session, job.id, "elsewhere") is not None
+    assert train_step(settings, mission_id, 0, Recorder(), in_chord=True) == "busy"
+    _, jobs, _, _ = load(settings, mission_id)
+    assert jobs[0].status == JobStatus.running and jobs[0].worker == "elsewhere"
+    assert jobs[0].attempts == 1
