@@ -18,6 +18,7 @@ import numpy as np
 
 from planner.automaton import Buchi
 from planner.decompose import SubTask, decompose
+from planner.errors import PlanningError
 from planner.guard import Cube
 from planner.ltl import check_mission_formula, parse
 from planner.ltl_semantics import holds_on_lasso
@@ -36,7 +37,8 @@ class MissionPlan:
     ``nba`` is the automaton of the formula, ``pruned`` the one TL-RRT* planned in (the lasso's
     and sub-tasks' automaton states refer to it). ``r_ball`` is the radius of the sub-tasks'
     guide balls and ``eta`` the steering step used. ``seconds`` covers the whole pipeline,
-    ``translation_seconds`` parsing, translation and pruning.
+    ``translation_seconds`` parsing, translation and pruning. ``clearance`` is the distance
+    the lasso keeps from obstacles (the robot radius, plus the planner margin when it fit).
     """
 
     formula: str
@@ -49,6 +51,7 @@ class MissionPlan:
     r_ball: float
     seconds: float
     translation_seconds: float
+    clearance: float = 0.0
 
     def to_json(self) -> dict[str, Any]:
         """The plan document of the ``ltlnav plan --json`` output (issue section 6)."""
@@ -77,6 +80,7 @@ class MissionPlan:
                 }
                 for s in self.subtasks
             ],
+            "clearance": self.clearance,
             "seconds": self.seconds,
         }
 
@@ -104,12 +108,24 @@ def plan_mission(
     clearance: float,
     options: PlannerSpec | None = None,
 ) -> MissionPlan:
-    """Plan ``task`` (LTL text) in ``world`` for a robot of radius ``clearance`` at ``start``.
+    """Plan ``task`` (LTL text) in ``world`` for a robot of radius ``clearance`` at ``start``,
+    keeping ``options.margin`` more where a plan exists with it.
 
     Raises FormulaError for a bad formula and PlanningError when no plan exists or none was
     found within the budget (the message says which).
     """
     opts = options if options is not None else PlannerSpec()
+    if opts.margin > 0:
+        try:
+            return _plan(world, task, start, clearance + opts.margin, opts)
+        except PlanningError:
+            pass  # too narrow somewhere with the margin: the radius alone decides
+    return _plan(world, task, start, clearance, opts)
+
+
+def _plan(
+    world: World, task: str, start: np.ndarray, clearance: float, opts: PlannerSpec
+) -> MissionPlan:
     t0 = time.process_time()
     nba, pruned = translate_task(task, world, clearance)
     pruned = restrict_to_reachable(pruned, world, np.asarray(start, dtype=float), clearance)
@@ -129,6 +145,7 @@ def plan_mission(
         r_ball=opts.r_ball if opts.r_ball is not None else eta / 2.0,
         seconds=time.process_time() - t0,
         translation_seconds=t_translate,
+        clearance=clearance,
     )
 
 

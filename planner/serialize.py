@@ -88,6 +88,7 @@ def plan_to_dict(plan: MissionPlan) -> dict[str, Any]:
         "r_ball": plan.r_ball,
         "seconds": plan.seconds,
         "translation_seconds": plan.translation_seconds,
+        "clearance": plan.clearance,
     }
 
 
@@ -124,4 +125,5 @@ def plan_from_dict(doc: dict[str, Any]) -> MissionPlan:
         r_ball=float(doc["r_ball"]),
         seconds=float(doc["seconds"]),
         translation_seconds=float(doc["translation_seconds"]),
+        clearance=float(doc.get("clearance", 0.0)),
     )

@@ -60,6 +60,7 @@ def test_infinite_task_plan_is_valid_and_serialises(gf3: MissionPlan) -> None:
         "prefix_cost",
         "suffix_cost",
         "subtasks",
+        "clearance",
         "seconds",
     }
     assert doc["automaton"]["states"] == gf3.pruned.num_states
@@ -98,6 +99,19 @@ def test_case1_with_clearance() -> None:
     goals = [s.goal for s in plan.subtasks]
     assert goals.index("l4") < goals.index("l3")
     assert not world.in_collision(plan.lasso.prefix, 0.02).any()
+
+
+def test_margin_keeps_the_guide_off_obstacles_and_falls_back_where_too_narrow() -> None:
+    world = reference_world()
+    task = "<>l1 && []<>(l2 && <>l3) && (!l3 U l4) && []!l5"
+    opts = PlannerSpec(seed=1, refine_seconds=0.1, margin=0.01)
+    plan = plan_mission(world, task, START, 0.02, opts)
+    assert plan.clearance == pytest.approx(0.03)
+    assert verify_plan(plan, world, 0.03) == []
+    # a margin wider than every passage: the plan keeps the radius alone
+    wide = plan_mission(world, task, START, 0.02, opts.model_copy(update={"margin": 5.0}))
+    assert wide.clearance == pytest.approx(0.02)
+    assert verify_plan(wide, world, 0.02) == []
 
 
 def test_bad_tasks() -> None:
