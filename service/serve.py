@@ -17,9 +17,9 @@ import uvicorn
 from service.db import upgrade
 from service.settings import Settings
 
-WORKER_GRACE_SECONDS = 10.0
-"""How long a stopping worker may finish its running tasks before it is shut down cold
-(their jobs resume from their checkpoints later)."""
+WORKER_GRACE_SECONDS = 20.0
+"""How long a stopping worker may take for its warm shutdown (an idle one takes ~10 s here)
+before it is shut down cold; jobs cut short resume from their checkpoints later."""
 
 Say = Callable[[str], None]
 

@@ -32,14 +32,11 @@ def api_schema(tmp_path_factory: pytest.TempPathFactory) -> Iterator[BaseSchema]
     upgrade(url)
     database = Database(url)
     app = create_app(settings_for(tmp_path, url, keys=["fuzz-key"]), RecordingEnqueue(database))
-    real_broker_state = health.broker_state
-    health.broker_state = lambda settings: ("ok", None)  # type: ignore[assignment]
     TestClient(app).post("/missions", json=tiny(), headers=bearer("fuzz-key"))
-    try:
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(health, "broker_state", lambda settings: ("ok", None))
         yield schemathesis.openapi.from_asgi("/openapi.json", app)
-    finally:
-        health.broker_state = real_broker_state  # type: ignore[assignment]
-        database.dispose()
+    database.dispose()
 
 
 @pytest.mark.slow
