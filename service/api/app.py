@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import logging
+import threading
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
@@ -41,6 +42,21 @@ def default_enqueue(settings: Settings) -> Enqueue:
     return enqueue
 
 
+def _import_worker_code() -> None:
+    try:
+        import workers.tasks  # noqa: F401
+    except Exception as error:
+        log.warning("cannot load the worker code to enqueue missions: %s", error)
+
+
+def warm_up_enqueue() -> threading.Thread:
+    """Import the Celery task module in the background, so that the first submission does
+    not wait for it (today it pulls in torch: seconds)."""
+    thread = threading.Thread(target=_import_worker_code, name="ltlnav-warm-up", daemon=True)
+    thread.start()
+    return thread
+
+
 def _openapi(app: FastAPI) -> dict[str, Any]:
     if app.openapi_schema is None:
         schema = get_openapi(
@@ -68,11 +84,15 @@ def create_app(settings: Settings | None = None, enqueue: Enqueue | None = None)
         database=Database(settings.database_url),
         enqueue=enqueue or default_enqueue(settings),
     )
+    celery_enqueue = enqueue is None
 
     @asynccontextmanager
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
         if not settings.api_keys:
             log.warning(OPEN_API_WARNING)
+        if celery_enqueue:
+            warm_up_enqueue()
+        threading.Thread(target=services.examples.all, name="ltlnav-examples", daemon=True).start()
         try:
             yield
         finally:
