@@ -9,8 +9,8 @@ with its worker. Every worker therefore runs ``reconcile_forever`` in a thread; 
   from their checkpoints);
 - sends planning / assembly again for missions whose planner or assembler stopped beating;
 - assembles missions whose jobs are all done but which are still training (lost callback);
-- when the broker queue is empty, sends again missions and jobs still queued for a while
-  (their messages were lost);
+- when the broker queue was empty at two passes in a row, sends again missions and jobs
+  still queued for a while (their messages were lost);
 - every ``broker_cleanup_seconds``, deletes consumed rows of the SQLAlchemy broker and expired
   results.
 
@@ -24,7 +24,6 @@ import logging
 import random
 import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from celery import Celery
@@ -55,16 +54,14 @@ class Reconciled:
         return bool(self.cancelled or self.jobs or self.plans or self.assemblies)
 
 
-def reconcile_once(
-    settings: Settings, dispatch: Dispatch, queue_size: Callable[[], int | None] | None = None
-) -> Reconciled:
-    """One reconciliation pass (see the module docstring). ``queue_size()`` is the number of
-    messages waiting in the broker (None: unknown; then queued work is not sent again)."""
+def reconcile_once(settings: Settings, dispatch: Dispatch, drained: bool = False) -> Reconciled:
+    """One reconciliation pass (see the module docstring). ``drained``: the broker queue was
+    found empty (long enough that queued work without a message is lost, not in flight)."""
     db = database_for(settings)
     out = Reconciled()
     # First, while the jobs re-queued below are not yet sent: queued work whose message is
     # gone (nothing waits in the broker).
-    if queue_size is not None and queue_size() == 0:
+    if drained:
         with db.session() as session:
             queued = repository.claim_queued_missions(session, settings.requeue_after_seconds)
             out.plans = [m.id for m in queued]
@@ -92,6 +89,21 @@ def reconcile_once(
     if out:
         log.info("reconciled: %s", out)
     return out
+
+
+class DrainWatch:
+    """Whether the broker queue was empty at two looks in a row: only then is queued work
+    without a message lost (a message a worker has just taken is not yet claimed)."""
+
+    def __init__(self) -> None:
+        self._empty_before = False
+
+    def drained(self, size: int | None) -> bool:
+        """Take one look (``size`` None: the broker could not be asked)."""
+        empty = size == 0
+        drained = empty and self._empty_before
+        self._empty_before = empty
+        return drained
 
 
 def queue_size(app: Celery) -> int | None:
@@ -135,9 +147,10 @@ def reconcile_forever(app: LtlnavCelery, stop: threading.Event) -> None:
     last_cleanup = -float("inf")
     # Workers started together should not reconcile in lockstep.
     stop.wait(random.uniform(0, min(1.0, settings.reconcile_seconds)))
+    watch = DrainWatch()
     while not stop.is_set():
         try:
-            reconcile_once(settings, dispatch, lambda: queue_size(app))
+            reconcile_once(settings, dispatch, drained=watch.drained(queue_size(app)))
             if time.monotonic() - last_cleanup >= settings.broker_cleanup_seconds:
                 last_cleanup = time.monotonic()
                 removed = clean_broker(settings)

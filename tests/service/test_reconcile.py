@@ -16,7 +16,7 @@ from service.db import Database
 from service.models import Job, JobStatus, Mission, MissionStatus, utcnow
 from service.repository import recovery
 from service.settings import Settings
-from workers.reconcile import clean_broker, reconcile_once
+from workers.reconcile import DrainWatch, clean_broker, reconcile_once
 
 
 class Recorder:
@@ -94,11 +94,11 @@ def test_a_stale_running_job_is_queued_and_sent_again(
     )
     set_job(database, mission_id, 1, status=JobStatus.running, heartbeat_at=utcnow(), worker="w")
     sent = Recorder()
-    reconcile_once(settings, sent, lambda: 3)
+    reconcile_once(settings, sent, drained=False)
     assert sent.sent == [("train", mission_id, 0)]
     assert status_of(database, mission_id)[1] == [JobStatus.queued, JobStatus.running]
     again = Recorder()
-    reconcile_once(settings, again, lambda: 3)
+    reconcile_once(settings, again, drained=False)
     assert again.sent == []  # claimed once
 
 
@@ -110,17 +110,14 @@ def test_queued_work_is_sent_again_only_when_the_queue_is_empty(
     training = mission_in(database, MissionStatus.training, jobs=2)
     set_job(database, training, 1, status=JobStatus.running, heartbeat_at=utcnow(), worker="w")
     waiting = Recorder()
-    reconcile_once(settings, waiting, lambda: 2)  # messages wait in the broker: no resend
+    reconcile_once(settings, waiting)  # messages wait in the broker: no resend
     assert waiting.sent == []
-    unknown = Recorder()
-    reconcile_once(settings, unknown, lambda: None)  # broker cannot be asked: no resend
-    assert unknown.sent == []
     lost = Recorder()
-    reconcile_once(settings, lost, lambda: 0)
+    reconcile_once(settings, lost, drained=True)
     assert sorted(lost.sent) == sorted([("plan", queued), ("train", training, 0)])
     assert fresh not in str(lost.sent)
     again = Recorder()
-    reconcile_once(settings, again, lambda: 0)  # not again before requeue_after_seconds
+    reconcile_once(settings, again, drained=True)  # not again before requeue_after_seconds
     assert again.sent == []
 
 
@@ -131,7 +128,7 @@ def test_stalled_planning_and_assembly_are_sent_again(
     evaluating = mission_in(database, MissionStatus.evaluating, jobs=1)
     live = mission_in(database, MissionStatus.evaluating, jobs=1, age=timedelta(0))
     sent = Recorder()
-    reconcile_once(settings, sent, lambda: 1)
+    reconcile_once(settings, sent, drained=False)
     assert sorted(sent.sent) == sorted([("assemble", evaluating), ("plan", planning)])
     assert status_of(database, planning)[0] == MissionStatus.queued
     assert status_of(database, evaluating)[0] == MissionStatus.training
@@ -145,10 +142,10 @@ def test_a_lost_chord_callback_is_replaced(database: Database, settings: Setting
     recent = mission_in(database, MissionStatus.training, jobs=1)
     set_job(database, recent, 0, status=JobStatus.done, finished_at=utcnow())
     sent = Recorder()
-    reconcile_once(settings, sent, lambda: 1)
+    reconcile_once(settings, sent, drained=False)
     assert sent.sent == [("assemble", mission_id)]
     again = Recorder()
-    reconcile_once(settings, again, lambda: 1)
+    reconcile_once(settings, again, drained=False)
     assert again.sent == []
 
 
@@ -161,7 +158,7 @@ def test_a_cancelled_mission_without_running_jobs_ends_cancelled(
     with database.session() as session:
         repository.request_cancel(session, idle)
         repository.request_cancel(session, busy)
-    out = reconcile_once(settings, Recorder(), lambda: 1)
+    out = reconcile_once(settings, Recorder(), drained=False)
     assert out.cancelled == [idle]
     assert status_of(database, idle) == (MissionStatus.cancelled, [JobStatus.cancelled] * 2)
     assert status_of(database, busy)[0] == MissionStatus.training
@@ -198,3 +195,11 @@ def test_consumed_broker_messages_are_deleted(tmp_path: Path) -> None:
         assert connection.execute(text("SELECT visible FROM kombu_message")).scalars().all() == [1]
     engine.dispose()
     assert clean_broker(Settings(data_dir=tmp_path, broker_url="redis://127.0.0.1:1/0")) == 0
+
+
+def test_the_queue_counts_as_drained_after_two_empty_looks() -> None:
+    watch = DrainWatch()
+    looks = [0, 0, 0, 2, 0, None, 0, 0]
+    assert [watch.drained(size) for size in looks] == [
+        False, True, True, False, False, False, False, True
+    ]  # fmt: skip
