@@ -19,6 +19,8 @@ from contextlib import AbstractContextManager, contextmanager, suppress
 from pathlib import Path
 
 import numpy as np
+from sqlalchemy.exc import DBAPIError
+from sqlalchemy.orm import Session
 
 from service import repository
 from service.db import Database
@@ -84,6 +86,9 @@ class JobMonitor:
         self._checkpoints: set[int] = set()
         self._npz_mtime = 0.0
         self._started: tuple[float, int] | None = None
+        self._drop_after: int | None = None
+        self._points: list[tuple[int, int, float, float | None]] = []
+        self._saved: list[tuple[int, Path]] = []
 
     @property
     def stopping(self) -> bool:
@@ -112,47 +117,67 @@ class JobMonitor:
             yield self
 
     def on_progress(self, steps: int, success_rate: float | None, total: int) -> None:
-        """The ``on_progress`` hook: throttled progress, new curve points and checkpoints."""
+        """The ``on_progress`` hook: throttled progress, new curve points and checkpoints.
+        A database error is logged and the writes are tried again at the next call: a blip
+        of the database does not end hours of training."""
         first = self._curve_upto is None
         if first:
             # The resume point: later points will be redone, and the evaluations file still
             # holds those of the run that died: wait for this run to rewrite it.
             self._curve_upto = steps
+            self._drop_after = steps
             with suppress(FileNotFoundError):
                 self._npz_mtime = (self.out_dir / "evaluations.npz").stat().st_mtime
         now = time.monotonic()
-        new_points = self._new_curve_points()
-        new_checkpoints = self._new_checkpoints()
-        due = now - self._last_write >= self.heartbeat_seconds
-        if not (first or due or new_points or new_checkpoints or steps >= total):
+        fresh = self._collect()
+        if not (
+            first or fresh or steps >= total or now - self._last_write >= self.heartbeat_seconds
+        ):
             return
         self._last_write = now
-        with self.db.session() as session:
-            if not repository.holds_job(session, self.job_id, self.worker):
-                self.lost.set()
-                return
-            if first:
-                repository.drop_evaluations_after(session, self.job_id, steps)
-            for point in new_points:
-                repository.record_evaluation(session, self.mission_id, self.job_id, *point)
-            for at, path in new_checkpoints:
-                repository.record_checkpoint(session, self.job_id, at, str(path))
-            remaining = max(total - steps, 0)
-            repository.record_progress(
-                session, self.job_id, steps, success_rate, self._eta(steps, remaining)
-            )
+        try:
+            with self.db.session() as session:
+                if not repository.holds_job(session, self.job_id, self.worker):
+                    self.lost.set()
+                    return
+                self._write_pending(session)
+                remaining = max(total - steps, 0)
+                repository.record_progress(
+                    session, self.job_id, steps, success_rate, self._eta(steps, remaining)
+                )
+        except DBAPIError as error:
+            log.warning("progress of job %d not written (tried again): %s", self.job_id, error)
+            return
+        self._clear_pending()
         self._last_beat = now
 
     def flush(self) -> None:
         """Write the curve points and checkpoints not yet recorded (at the end of a run)."""
-        points, saved = self._new_curve_points(), self._new_checkpoints()
-        if not points and not saved:
+        if not self._collect() and self._drop_after is None:
             return
         with self.db.session() as session:
-            for point in points:
-                repository.record_evaluation(session, self.mission_id, self.job_id, *point)
-            for at, path in saved:
-                repository.record_checkpoint(session, self.job_id, at, str(path))
+            self._write_pending(session)
+        self._clear_pending()
+
+    def _collect(self) -> bool:
+        """Add new curve points and checkpoints to the pending writes; whether any."""
+        points, saved = self._new_curve_points(), self._new_checkpoints()
+        self._points.extend(points)
+        self._saved.extend(saved)
+        return bool(points or saved)
+
+    def _write_pending(self, session: Session) -> None:
+        if self._drop_after is not None:
+            repository.drop_evaluations_after(session, self.job_id, self._drop_after)
+        for point in self._points:
+            repository.record_evaluation(session, self.mission_id, self.job_id, *point)
+        for at, path in self._saved:
+            repository.record_checkpoint(session, self.job_id, at, str(path))
+
+    def _clear_pending(self) -> None:
+        self._drop_after = None
+        self._points.clear()
+        self._saved.clear()
 
     def _eta(self, steps: int, remaining: int) -> float | None:
         if self._started is None:

@@ -262,3 +262,33 @@ def test_a_redelivered_task_leaves_a_running_job_alone(settings: Settings) -> No
     _, jobs, _, _ = load(settings, mission_id)
     assert jobs[0].status == JobStatus.running and jobs[0].worker == "elsewhere"
     assert jobs[0].attempts == 1
+
+
+def test_a_database_blip_delays_progress_writes_but_loses_none(
+    settings: Settings, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from sqlalchemy.exc import OperationalError
+
+    mission_id = submit(settings)
+    plan_step(settings, mission_id, Recorder())
+    db = Database(settings.database_url)
+    with db.session() as session:
+        job = repository.get_job(session, mission_id, 0)
+        assert job is not None and repository.claim_job(session, job.id, "me") is not None
+    folder = Path(job.out_dir) / "checkpoints"
+    folder.mkdir(parents=True)
+    (folder / "model_100_steps.zip").write_bytes(b"model")
+    monitor = JobMonitor(db, mission_id, job.id, "me", Path(job.out_dir), 0.01)
+    real = repository.record_progress
+
+    def down(*_args: Any, **_kwargs: Any) -> None:
+        raise OperationalError("UPDATE jobs", {}, Exception("connection lost"))
+
+    monkeypatch.setattr(repository, "record_progress", down)
+    monitor.on_progress(100, None, 200)  # logged, not raised: training goes on
+    assert load(settings, mission_id)[3][0] is None
+    monkeypatch.setattr(repository, "record_progress", real)
+    time.sleep(0.02)
+    monitor.on_progress(150, None, 200)
+    _, jobs, _, saved = load(settings, mission_id)
+    assert saved[0] is not None and saved[0].steps == 100 and jobs[0].steps_done == 150
