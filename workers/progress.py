@@ -39,6 +39,8 @@ def beating(every: float, beat: Callable[[], None]) -> Iterator[None]:
         while not stop.wait(every):
             try:
                 beat()
+            except DBAPIError as error:
+                log.warning("heartbeat not written: %s", error.orig)
             except Exception:
                 log.exception("heartbeat failed")
 
