@@ -110,8 +110,8 @@ class Settings(BaseSettings):
     messages, lost chord callbacks)."""
 
     requeue_after_seconds: float = Field(default=10.0, gt=0)
-    """A mission or job still queued this long while the broker queue is empty lost its
-    message: the reconciler sends it again."""
+    """A mission or job still queued this long while the broker queue stays empty (two
+    reconciler passes) lost its message: the reconciler sends it again."""
 
     broker_cleanup_seconds: float = Field(default=60.0, gt=0)
     """How often consumed messages are deleted from the SQLAlchemy broker's table (kombu keeps
