@@ -27,7 +27,7 @@ class ProblemsError(Exception):
 
 
 def _loc_part(part: str) -> str | int:
-    return int(part) if part.isdigit() else part
+    return int(part) if part.isascii() and part.isdigit() else part
 
 
 def body_problem(path: str, message: str, kind: str = "mission") -> Problem:

@@ -3,6 +3,7 @@ is stored or enqueued, and the missions already there are untouched."""
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -11,6 +12,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 from service.api.app import create_app
+from service.api.body_limit import BodyLimit
+from service.api.errors import body_problem
 from service.db import Database, upgrade
 from tests.service.api_helpers import RecordingEnqueue, settings_for, tiny
 
@@ -181,3 +184,29 @@ def test_bad_input_never_loses_an_accepted_mission(
     page = http.get("/missions").json()
     assert [m["id"] for m in page["items"]] == [first]
     assert enqueue.calls == [first]
+
+
+def test_unicode_digits_in_paths_and_lengths(setup: tuple[TestClient, RecordingEnqueue]) -> None:
+    """Found by the fuzzer: '²' is a digit to ``str.isdigit`` but not to ``int``."""
+    http, _ = setup
+    response = http.post("/missions", json=_with(training__env={"²": None}))
+    assert response.status_code == 422
+    problem = _problems(response)["training.env.²"]
+    assert problem["loc"] == ["body", "training", "env", "²"]
+    assert body_problem("world.obstacles.0", "x").loc == ["body", "world", "obstacles", 0]
+
+    sent: list[dict[str, Any]] = []
+
+    async def app(scope: Any, receive: Any, send: Any) -> None:
+        await send({"type": "http.response.start", "status": 204, "headers": []})
+        await send({"type": "http.response.body", "body": b""})
+
+    async def receive() -> dict[str, Any]:
+        return {"type": "http.request", "body": b"", "more_body": False}
+
+    async def send(message: dict[str, Any]) -> None:
+        sent.append(message)
+
+    scope = {"type": "http", "headers": [(b"content-length", "²".encode())]}
+    asyncio.run(BodyLimit(app, 10)(scope, receive, send))
+    assert sent[0]["status"] == 204
