@@ -24,7 +24,8 @@ from service.db import Database, upgrade
 from tests.service.api_helpers import RecordingEnqueue, bearer, settings_for, tiny
 
 EXAMPLES = 60
-"""Examples per operation and generation mode (10 operations: about 7-10 s per mode here, more when the machine is busy)."""
+"""Examples per operation and generation mode (10 operations: 5-10 s per mode here, a few times
+that when the machine is busy)."""
 
 
 @pytest.fixture(scope="module")
