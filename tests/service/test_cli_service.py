@@ -25,6 +25,7 @@ from service.db import Database, upgrade
 from service.models import MissionStatus
 from service.settings import Settings
 from tests.service.api_helpers import REPO, advance, free_port, served, settings_for, tiny
+from workers.policy import read_bundle
 
 
 class FakeWorker:
@@ -164,3 +165,36 @@ def test_serve_migrates_says_open_and_stops_cleanly(tmp_path: Path, stop: signal
     # The worker led its own session: nothing of it (pool processes included) is left.
     session = subprocess.run(["pgrep", "-s", worker_pid.group(1)], capture_output=True, text=True)
     assert session.stdout == ""
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_serve_then_submit_wait_trains_the_tiny_mission(tmp_path: Path) -> None:
+    """The product path: ``ltlnav serve`` (API + embedded worker) and ``ltlnav submit --wait``
+    as real processes; the bundle downloaded opens."""
+    port = free_port()
+    process = _serve(tmp_path, port, "--workers", "2")
+    base = f"http://127.0.0.1:{port}"
+    try:
+        _wait_healthy(base, process)
+        out = tmp_path / "out"
+        mission = str(_mission_file(tmp_path))
+        options = ["--url", base, "--wait", "--poll", "0.5", "--out", str(out)]
+        submit = subprocess.run(
+            [sys.executable, "-m", "service.cli", "submit", mission, *options],
+            cwd=REPO,
+            capture_output=True,
+            text=True,
+            timeout=240,
+        )
+    finally:
+        process.send_signal(signal.SIGINT)
+        try:
+            process.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            process.kill()
+    assert submit.returncode == 0, submit.stdout + submit.stderr
+    assert "status: done" in submit.stdout
+    assert "mission success rate" in submit.stdout
+    manifest, files = read_bundle(out / "bundle.zip")
+    assert len(manifest.subtasks) == 4 and files
