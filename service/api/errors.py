@@ -50,12 +50,16 @@ async def _problems_handler(request: Request, error: Exception) -> JSONResponse:
     return JSONResponse(content, status_code=error.status_code)
 
 
+_MISSING_TABLE = ("no such table", "UndefinedTable")
+
+
 async def _database_handler(request: Request, error: Exception) -> JSONResponse:
     log.error("database error on %s %s: %s", request.method, request.url.path, error)
-    return JSONResponse(
-        {"detail": "the database is unavailable; try again shortly"},
-        status_code=status.HTTP_503_SERVICE_UNAVAILABLE,
-    )
+    text = f"{error} {type(getattr(error, 'orig', None)).__name__}"
+    detail = "the database is unavailable; try again shortly"
+    if any(marker in text for marker in _MISSING_TABLE):
+        detail = "the database is not migrated: run `ltlnav migrate`"
+    return JSONResponse({"detail": detail}, status_code=status.HTTP_503_SERVICE_UNAVAILABLE)
 
 
 def install_handlers(app: FastAPI) -> None:

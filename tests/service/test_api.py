@@ -335,3 +335,12 @@ def test_openapi_documents_every_route(api: Api) -> None:
     body = schema["paths"]["/missions"]["post"]["requestBody"]["content"]["application/json"]
     assert {"$ref": "#/components/schemas/MissionSpec"} in body["schema"]["oneOf"]
     assert api.http.get("/docs").status_code == 200
+
+
+def test_unmigrated_database_says_so(tmp_path: Path) -> None:
+    from service.api.app import create_app
+
+    app = create_app(settings_for(tmp_path, f"sqlite:///{tmp_path / 'empty.db'}"), print)
+    response = client(app).get("/missions")
+    assert response.status_code == 503
+    assert "ltlnav migrate" in response.json()["detail"]
