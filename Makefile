@@ -3,7 +3,6 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
-EXAMPLE ?= examples/car-phi2-fin.yaml
 DATA_DIR ?= var
 
 .PHONY: install run test lint typecheck unit spin browser bench clean

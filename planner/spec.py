@@ -264,7 +264,9 @@ RegionLabel = Annotated[str, AfterValidator(_region_label)]
 class RandomObstaclesSpec(_Spec):
     """Boxes scattered uniformly at random, away from the regions and the robot's start."""
 
-    count: int = Field(ge=0, description="Number of boxes to place.")
+    count: int = Field(
+        ge=0, le=2000, description="Number of boxes to place (validation places them: <= 2000)."
+    )
     size: list[float] = Field(description="Edge length of every box, one per axis (each > 0).")
     seed: int = Field(0, description="Seed of the generator: the same seed gives the same boxes.")
     clearance: float = Field(

@@ -18,7 +18,6 @@ from celery.canvas import Signature
 
 from service.settings import Settings, get_settings
 from workers.celery_app import LtlnavCelery, make_celery
-from workers.steps import assemble_step, plan_step, train_step
 
 log = logging.getLogger(__name__)
 
@@ -87,6 +86,8 @@ def _settings(task: Task[Any, Any]) -> Settings:
 @shared_task(bind=True, name=PLAN)
 def plan_mission(self: Task[Any, Any], mission_id: str) -> str:
     """Plan the mission, store the plan and its jobs, send the training chord."""
+    from workers.steps import plan_step  # torch and the planner: workers only, not the API
+
     outcome = plan_step(_settings(self), mission_id, CeleryDispatch(self.app))
     log.info("plan_mission %s: %s", mission_id, outcome)
     return outcome
@@ -95,6 +96,8 @@ def plan_mission(self: Task[Any, Any], mission_id: str) -> str:
 @shared_task(bind=True, name=TRAIN)
 def train_subtask(self: Task[Any, Any], mission_id: str, index: int) -> str:
     """Train one sub-task (resuming from its checkpoints) and record the result."""
+    from workers.steps import train_step
+
     in_chord = self.request.chord is not None
     outcome = train_step(_settings(self), mission_id, index, CeleryDispatch(self.app), in_chord)
     log.info("train_subtask %s/%d: %s", mission_id, index, outcome)
@@ -104,6 +107,8 @@ def train_subtask(self: Task[Any, Any], mission_id: str, index: int) -> str:
 @shared_task(bind=True, name=ASSEMBLE)
 def assemble_mission(self: Task[Any, Any], mission_id: str) -> str:
     """Evaluate the whole mission and write its bundle once every job is done."""
+    from workers.steps import assemble_step
+
     outcome = assemble_step(_settings(self), mission_id)
     log.info("assemble_mission %s: %s", mission_id, outcome)
     return outcome

@@ -50,8 +50,8 @@ def _import_worker_code() -> None:
 
 
 async def warm_up_enqueue() -> None:
-    """Import the Celery task module at start-up rather than in the first submission (today
-    it pulls in torch: 4-18 s here)."""
+    """Import the Celery task module (Celery, kombu's transports: about a second) at start-up
+    rather than in the first submission."""
     await run_in_threadpool(_import_worker_code)
 
 
