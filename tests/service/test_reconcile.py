@@ -3,7 +3,6 @@ reconcilers at once send each piece of work once."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from datetime import timedelta
 from pathlib import Path
 from typing import Any
@@ -16,24 +15,8 @@ from service.db import Database
 from service.models import Job, JobStatus, Mission, MissionStatus, utcnow
 from service.repository import recovery
 from service.settings import Settings
+from tests.service.dispatch import Recorder
 from workers.reconcile import DrainWatch, clean_broker, reconcile_once
-
-
-class Recorder:
-    def __init__(self) -> None:
-        self.sent: list[tuple[Any, ...]] = []
-
-    def training(self, mission_id: str, indices: Sequence[int]) -> None:
-        self.sent.append(("training", mission_id, list(indices)))
-
-    def train(self, mission_id: str, index: int) -> None:
-        self.sent.append(("train", mission_id, index))
-
-    def assemble(self, mission_id: str) -> None:
-        self.sent.append(("assemble", mission_id))
-
-    def plan(self, mission_id: str) -> None:
-        self.sent.append(("plan", mission_id))
 
 
 @pytest.fixture

@@ -18,30 +18,12 @@ from service import repository
 from service.db import Database, upgrade
 from service.models import Job, JobStatus, MissionStatus, utcnow
 from service.settings import Settings
+from tests.service.dispatch import Recorder
 from tests.workers.missions import tiny_mission
 from workers.progress import JobMonitor
 from workers.steps import assemble_step, plan_step, train_step
 
 pytestmark = pytest.mark.timeout(120)
-
-
-class Recorder:
-    """A ``Dispatch`` that remembers what would have been sent."""
-
-    def __init__(self) -> None:
-        self.sent: list[tuple[Any, ...]] = []
-
-    def training(self, mission_id: str, indices: Sequence[int]) -> None:
-        self.sent.append(("training", mission_id, list(indices)))
-
-    def train(self, mission_id: str, index: int) -> None:
-        self.sent.append(("train", mission_id, index))
-
-    def assemble(self, mission_id: str) -> None:
-        self.sent.append(("assemble", mission_id))
-
-    def plan(self, mission_id: str) -> None:
-        self.sent.append(("plan", mission_id))
 
 
 @pytest.fixture
