@@ -25,6 +25,7 @@ Run ``.venv/bin/python bench/train.py`` (the ``table1`` preset; hours on two cor
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import multiprocessing
 import os
@@ -63,10 +64,16 @@ class Row:
     """Sub-tasks to train (None: all of them, then the whole-mission rollouts)."""
     timesteps: int | None = None
     """Budget per sub-task (None: the mission's ``training.n_timesteps``)."""
+    env: tuple[tuple[str, Any], ...] = ()
+    """``training.env`` overrides (a variant of the method, named in the folder)."""
+
+    @property
+    def variant(self) -> str:
+        return self.method + "".join(f"+{k}={v}" for k, v in self.env)
 
     @property
     def folder(self) -> str:
-        return f"{self.mission}/{self.method}/seed{self.seed}"
+        return f"{self.mission}/{self.variant}/seed{self.seed}"
 
     @staticmethod
     def parse(text: str) -> Row:
@@ -115,6 +122,7 @@ def load_mission(name: str, row: Row) -> MissionSpec:
         document["robot"]["model"] = model
     training = document.setdefault("training", {})
     training["seed"] = row.seed
+    training.setdefault("env", {}).update(dict(row.env))
     training.setdefault("reward", {})["mode"] = row.method
     if row.timesteps is not None:
         training["n_timesteps"] = row.timesteps
@@ -239,7 +247,7 @@ def table(rows: list[Row], out: Path, workers: int) -> str:
         mission = load_mission(row.mission, row)
         if fig is None:
             lines.append(
-                f"| {row.mission} | {mission.robot.model} | {row.method} | {row.seed} |"
+                f"| {row.mission} | {mission.robot.model} | {row.variant} | {row.seed} |"
                 " not run | | | | | | |"
             )
             continue
@@ -259,7 +267,7 @@ def table(rows: list[Row], out: Path, workers: int) -> str:
         ev = fig["mission"]
         ms = "-" if ev is None else f"{_pct(ev['success_rate'])} ({ev['episodes']})"
         lines.append(
-            f"| {row.mission} | {mission.robot.model} | {row.method} | {row.seed} | "
+            f"| {row.mission} | {mission.robot.model} | {row.variant} | {row.seed} | "
             f"{which} of {fig['n_subtasks']} | {success} | {steps} | {collisions} | {ms} | "
             f"{sum(seconds):.0f} | {makespan(seconds, workers):.0f} |"
         )
@@ -277,7 +285,7 @@ def medians(rows: list[Row], out: Path) -> str:
     for row in rows:
         fig = row_figures(row, out)
         if fig is not None and row.subtasks is None and fig["mission"] is not None:
-            groups.setdefault((row.mission, row.method), []).append(fig)
+            groups.setdefault((row.mission, row.variant), []).append(fig)
     lines = [
         "| task | method | seeds | median sub-task success | worst sub-task success | "
         "median steps to target | median mission success |",
@@ -371,6 +379,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--rows", nargs="*", type=Row.parse, help="mission:method:seed[:subs[:steps]]")
     p.add_argument("--out", default=str(ROOT / "var" / "bench" / "train"), help="run folders")
     p.add_argument("--jobs", type=int, default=2, help="training processes at once")
+    p.add_argument("--env", help='training.env overrides of every row, JSON ({"heading_noise": 3})')
     p.add_argument("--report", action="store_true", help="print the table of what is on disk")
     p.add_argument("--overhead", action="store_true", help="env cost against raw SB3 instead")
     p.add_argument("--overhead-steps", type=int, default=3000)
@@ -379,6 +388,9 @@ def main(argv: list[str] | None = None) -> None:
         print(overhead(args.overhead_steps, 3))
         return
     rows = args.rows or PRESETS[args.preset]
+    if args.env:
+        overrides = tuple(sorted(json.loads(args.env).items()))
+        rows = [dataclasses.replace(r, env=overrides) for r in rows]
     out = Path(args.out)
     if not args.report:
         run_rows(rows, out, args.jobs)
