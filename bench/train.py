@@ -32,6 +32,7 @@ import os
 import statistics
 import sys
 import time
+import zipfile
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
@@ -214,8 +215,13 @@ def row_figures(row: Row, out: Path) -> dict[str, Any] | None:
         results.append(json.loads(path.read_text()))
     if not results:
         return None
-    stored = folder / "row.json"
-    mission = json.loads(stored.read_text())["evaluation"] if stored.is_file() else None
+    stored, bundle = folder / "row.json", folder / "bundle.zip"
+    mission = None
+    if stored.is_file():
+        mission = json.loads(stored.read_text())["evaluation"]
+    elif bundle.is_file():  # rolled out by ``ltlnav train --out`` on the row's folder
+        with zipfile.ZipFile(bundle) as archive:
+            mission = json.loads(archive.read("manifest.json"))["mission_evaluation"]
     plan = json.loads((folder / "plan.json").read_text())["plan"]
     return {"results": results, "mission": mission, "n_subtasks": len(plan["subtasks"])}
 
@@ -264,6 +270,8 @@ def table(rows: list[Row], out: Path, workers: int) -> str:
             if row.method == "g-rrt"
             else ("all" if row.subtasks is None else "+".join(map(str, row.subtasks)))
         )
+        if row.subtasks is None and row.method != "g-rrt" and len(res) < fig["n_subtasks"]:
+            which = f"{len(res)} trained"
         ev = fig["mission"]
         ms = "-" if ev is None else f"{_pct(ev['success_rate'])} ({ev['episodes']})"
         lines.append(
