@@ -151,26 +151,21 @@ def train_job(job: SubtaskJob, out_dir: str) -> dict[str, Any]:
     return train_subtask(job, out_dir).to_json()
 
 
-def assemble_row(row: Row, out: str) -> dict[str, Any]:
-    """Whole-mission rollouts of a finished row and its bundle; stored as ``row.json``."""
+def assemble_row(row: Row, out: Path) -> None:
+    """Whole-mission rollouts of a finished row, written with its ``bundle.zip``."""
     from workers.pipeline import assemble
     from workers.training import TrainResult
 
-    folder = Path(out) / row.folder
-    mission, plan, jobs = row_jobs(row, Path(out))
+    folder = out / row.folder
+    mission, plan, jobs = row_jobs(row, out)
     results = [
         TrainResult.from_json(
             json.loads((folder / f"subtask_{j.subtask}" / "result.json").read_text())
         )
         for j in jobs
     ]
-    t0 = time.monotonic()
     done = assemble(mission, plan, results, folder / "bundle.zip")
-    evaluation = done.evaluation.to_json()
-    evaluation.pop("trails", None)
-    summary = {"evaluation": evaluation, "seconds": time.monotonic() - t0}
-    (folder / "row.json").write_text(json.dumps(summary))
-    return summary
+    print(f"{row.folder}: mission success {done.evaluation.success_rate:.1%}", flush=True)
 
 
 def run_rows(rows: list[Row], out: Path, jobs: int) -> None:
@@ -185,7 +180,6 @@ def run_rows(rows: list[Row], out: Path, jobs: int) -> None:
                 target = str(out / row.folder / f"subtask_{spec.subtask}")
                 pending[pool.submit(train_job, spec, target)] = (row, spec.subtask)
         left = {row: sum(1 for r, _ in pending.values() if r == row) for row, *_ in planned}
-        rollouts: list[Future[dict[str, Any]]] = []
         for future in as_completed(pending):
             row, k = pending[future]
             result = future.result()
@@ -198,9 +192,7 @@ def run_rows(rows: list[Row], out: Path, jobs: int) -> None:
             )
             left[row] -= 1
             if left[row] == 0 and row.subtasks is None and row.method != "g-rrt":
-                rollouts.append(pool.submit(assemble_row, row, str(out)))
-        for future in rollouts:
-            future.result()
+                assemble_row(row, out)  # here, not queued behind every other row's training
 
 
 # ------------------------------------------------------------------------------------ report
@@ -215,11 +207,8 @@ def row_figures(row: Row, out: Path) -> dict[str, Any] | None:
         results.append(json.loads(path.read_text()))
     if not results:
         return None
-    stored, bundle = folder / "row.json", folder / "bundle.zip"
-    mission = None
-    if stored.is_file():
-        mission = json.loads(stored.read_text())["evaluation"]
-    elif bundle.is_file():  # rolled out by ``ltlnav train --out`` on the row's folder
+    bundle, mission = folder / "bundle.zip", None
+    if bundle.is_file():  # written by assemble_row or by ``ltlnav train --out`` on the folder
         with zipfile.ZipFile(bundle) as archive:
             mission = json.loads(archive.read("manifest.json"))["mission_evaluation"]
     plan = json.loads((folder / "plan.json").read_text())["plan"]
