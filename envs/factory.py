@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import gymnasium as gym
 import numpy as np
 
+from envs.handover import Pose, handover_poses
 from envs.nav_env import Leg, NavEnv
 from envs.observation import ObservationMode
 from envs.rewards import EnvConfigError, RegionTest, RewardConfig, reward_config, reward_mode
@@ -81,8 +82,12 @@ class EnvOptions:
     """Radius (m) of a uniform perturbation of the start position; a perturbed start stays
     collision free and in the same regions as the nominal one (100 draws, else no noise)."""
     heading_noise: float = 0.0
-    """Half-width (rad) of a uniform perturbation of the start heading (pi: any heading). The
-    nominal heading faces the guide, or is the mission's start heading at the mission start."""
+    """Half-width (rad) of a uniform perturbation of the start heading (pi: any heading)."""
+    handover: bool = True
+    """Real starts where the mission hands the robot over (``envs.handover``: each preceding
+    sub-task's guide entering its goal region, facing along it; the mission start with its
+    heading for the first sub-task); needs the plan. False, or without a plan: the start of
+    the sub-task's guide facing along it (the mission's start heading at the mission start)."""
     stall_steps: int = 0
     """End the episode after this many steps without a new r-ball (0: never)."""
     stall_penalty: float | None = None
@@ -225,6 +230,13 @@ def make_env(
     heading = legs[0].headings[0]
     if len(spec.start) > world.dim and np.allclose(subtasks[0].start, start):
         heading = float(spec.start[world.dim])
+    starts = [Pose(np.asarray(subtasks[0].start, dtype=float), heading)]
+    if plan is not None and opts.handover and not mode.whole_lasso:
+        k = next((i for i, s in enumerate(plan.subtasks) if s is subtasks[0]), None)
+        if k is not None:
+            facing = float(spec.start[world.dim]) if len(spec.start) > world.dim else heading
+            mission_start = Pose(start, facing)
+            starts = handover_poses(world, plan.subtasks, k, mission_start)
     own = robot is None
     bot = robot if robot is not None else make_robot(spec.model, world, spec.radius, spec.params)
     try:
@@ -235,7 +247,7 @@ def make_env(
             mode,
             opts,
             max_steps=opts.max_steps or default_max_steps(legs, bot, opts.time_factor),
-            start_heading=heading,
+            starts=starts,
             nba=plan.pruned if plan is not None else None,
             render_mode=render_mode,
             owns_robot=own,

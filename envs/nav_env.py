@@ -1,7 +1,8 @@
 """The product-state navigation env: a robot drives one sub-task's guide (or the whole lasso).
 
-An episode starts at the sub-task's start (or, with the curriculum, at a random r-ball of its
-guide with the progress index set to match) and ends when
+An episode starts at one of the sub-task's real starts (``envs.handover``: where the mission
+hands the robot over to it; or, with the curriculum, at a random r-ball of its guide with the
+progress index set to match) and ends when
 
 * the robot crashes (``robot.collided()``: obstacle or out of bounds): terminated, ``R-``,
   ``is_success`` False; this has first priority;
@@ -36,6 +37,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from envs.handover import Pose
 from envs.observation import HEADING_FEATURES, ObservationBuilder
 from envs.rays import RayCaster
 from envs.rewards import (
@@ -94,7 +96,7 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         options: EnvOptions,
         *,
         max_steps: int,
-        start_heading: float,
+        starts: Sequence[Pose],
         nba: Buchi | None = None,
         render_mode: str | None = None,
         owns_robot: bool = True,
@@ -127,8 +129,11 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
             self._automaton = AutomatonTracker(nba, stages)
         first = self.legs[0]
         mode.bind_goal(first.goal, first.guide.centers[-1].tolist())
-        self.start = np.asarray(first.subtask.start, dtype=float).copy()
-        self.start_heading = float(start_heading)
+        if not starts:
+            raise EnvConfigError("starts", "no start pose")
+        self.starts = list(starts)
+        """The real starts (``envs.handover``): an episode without the curriculum begins at one
+        of them, drawn uniformly."""
         centers = np.concatenate([leg.guide.centers for leg in self.legs])
         self.ray_caster: RayCaster | None = None
         if options.rays:
@@ -162,16 +167,23 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
         """Start an episode. ``options`` (all optional): ``position`` and ``heading`` (an
-        explicit start, no curriculum or noise), or ``keep_robot=True`` (track from where the
-        robot stands, without resetting it: hand-over between sub-task envs sharing a robot)."""
+        explicit start, no curriculum or noise), ``start`` (index into ``starts``: that real
+        start, with the start noise, no curriculum), or ``keep_robot=True`` (track from where
+        the robot stands, without resetting it: hand-over between sub-task envs sharing a
+        robot)."""
         super().reset(seed=seed)
         rng = self.np_random
         opts = dict(options or {})
-        unknown = set(opts) - {"position", "heading", "keep_robot"}
+        unknown = set(opts) - {"position", "heading", "start", "keep_robot"}
         if unknown:
             raise ValueError(
-                f"unknown reset options {sorted(unknown)}; known: position, heading, keep_robot"
+                f"unknown reset options {sorted(unknown)}; known: position, heading, start, "
+                "keep_robot"
             )
+        chosen = opts.get("start")
+        valid = isinstance(chosen, int) and not isinstance(chosen, bool)
+        if chosen is not None and not (valid and 0 <= chosen < len(self.starts)):
+            raise ValueError(f"reset option start must index one of {len(self.starts)} starts")
         leg_k, ball = 0, -1
         if opts.get("keep_robot"):
             start = self.robot.position()
@@ -181,13 +193,17 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
             self.robot.reset(start, rng, None if heading is None else float(heading))
         else:
             o = self.options
-            if o.curriculum > 0 and rng.random() < o.curriculum and self.num_balls > 1:
+            curriculum = chosen is None and o.curriculum > 0 and self.num_balls > 1
+            if curriculum and rng.random() < o.curriculum:
                 leg_k, ball = self._leg_of(int(rng.integers(0, self.num_balls - 1)))
                 start = self.legs[leg_k].guide.centers[ball].copy()
                 heading = self.legs[leg_k].headings[ball]
                 keep: frozenset[str] | None = None
             else:
-                start, heading = self.start.copy(), self.start_heading
+                if chosen is None:
+                    chosen = 0 if len(self.starts) == 1 else int(rng.integers(len(self.starts)))
+                pose = self.starts[chosen]
+                start, heading = pose.position.copy(), pose.heading
                 keep = self._labeler.labels(start.tolist())
             if o.start_noise > 0:
                 start = self._perturb(start, keep, rng)

@@ -166,7 +166,8 @@ class MissionEnv(gym.Env[np.ndarray, np.ndarray]):
         super().reset(seed=seed)
         self.stage = 0
         self.trace, self.cycle_starts, self.trail = [], [], []
-        obs, info = self.envs[self.sequence[0]].reset(seed=seed)
+        # Real start 0 of the first sub-task is the mission start (envs.handover).
+        obs, info = self.envs[self.sequence[0]].reset(seed=seed, options={"start": 0})
         self._record()
         self._begin_stage()
         return self._obs(obs), {**info, "subtask": self.sequence[0], "stage": 0}

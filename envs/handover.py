@@ -1,0 +1,106 @@
+"""Where the concatenated policy hands the robot to a sub-task: its handover poses.
+
+A mission rollout switches sub-policies in place: sub-task ``k`` takes over wherever the robot
+stands when the previous sub-task's goal region is first entered, heading the way it came.
+That is not the start of ``k``'s guide (the cut point of the lasso, inside the region) and,
+when the lasso leaves a region the way it entered, it faces away from ``k``'s guide. Training
+and evaluating ``k`` from its guide's start facing along it measures a state the mission never
+produces; these poses are the states it does produce, read from the plan alone (so sub-tasks
+still train in parallel): the point where each predecessor's guide enters its goal region and
+the guide's direction there.
+
+Predecessors follow ``workers.evaluation.stage_sequence`` (the prefix, then the suffix cycled):
+the sub-task before in the sequence; the first suffix sub-task also follows the last suffix one
+(the cycle closes); the first sub-task of the sequence follows the mission start.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from envs.rewards import EnvConfigError, RegionTest
+from planner.world import World
+
+if TYPE_CHECKING:
+    from planner.decompose import SubTask
+
+STEP = 0.02
+"""Spacing (m) of the points tried along a guide for the first one inside its goal region."""
+INSIDE = 0.05
+"""How far (m) past the region's boundary the arrival point is taken, so it is inside."""
+
+
+@dataclass(frozen=True)
+class Pose:
+    """A start pose: workspace point and yaw."""
+
+    position: np.ndarray
+    heading: float
+
+
+def predecessors(subtasks: Sequence[SubTask], k: int) -> list[int | None]:
+    """Indices of the sub-tasks the rollout hands sub-task ``k`` over from (None: the mission
+    start), in the order of ``stage_sequence``."""
+    prefix = [i for i, s in enumerate(subtasks) if s.phase == "prefix"]
+    suffix = [i for i, s in enumerate(subtasks) if s.phase == "suffix"]
+    sequence = prefix + suffix
+    at = sequence.index(k)
+    found: list[int | None] = [None] if at == 0 else [sequence[at - 1]]
+    if suffix and k == suffix[0] and suffix[-1] not in found:
+        found.append(suffix[-1])
+    return found
+
+
+def arrival_pose(world: World, subtask: SubTask) -> Pose:
+    """Where a robot following ``subtask``'s guide first enters its goal region (a little
+    inside), facing along the guide; the guide's end for a sub-task without a goal region."""
+    path = np.asarray(subtask.path, dtype=float)
+    goal = RegionTest(world.regions[subtask.goal]) if subtask.goal else None
+    travelled_inside = -1.0
+    for a, b in itertools.pairwise(path):
+        length = float(np.linalg.norm(b - a))
+        if length < 1e-12:
+            continue
+        count = max(1, math.ceil(length / STEP))
+        for t in np.linspace(0.0, 1.0, count + 1)[1:]:
+            p = a + t * (b - a)
+            if goal is not None and goal.contains(p.tolist()):
+                entered = travelled_inside >= 0.0
+                travelled_inside = travelled_inside + length / count if entered else 0.0
+                if travelled_inside >= INSIDE:
+                    return Pose(p, _yaw(b - a))
+            elif travelled_inside >= 0.0:
+                travelled_inside = -1.0
+    if goal is not None and travelled_inside < 0.0 and not goal.contains(path[-1].tolist()):
+        raise EnvConfigError(
+            "subtask.path", f"sub-task {subtask.index}'s guide never enters region {subtask.goal!r}"
+        )
+    return Pose(path[-1].copy(), _last_yaw(path))
+
+
+def handover_poses(
+    world: World, subtasks: Sequence[SubTask], k: int, mission_start: Pose
+) -> list[Pose]:
+    """The poses sub-task ``k`` takes the robot over in (``mission_start`` first when it is
+    one of them)."""
+    return [
+        mission_start if p is None else arrival_pose(world, subtasks[p])
+        for p in predecessors(subtasks, k)
+    ]
+
+
+def _yaw(v: np.ndarray) -> float:
+    return math.atan2(float(v[1]), float(v[0]))
+
+
+def _last_yaw(path: np.ndarray) -> float:
+    for a, b in zip(path[-2::-1], path[:0:-1], strict=True):
+        if float(np.hypot(*(b - a)[:2])) > 1e-9:
+            return _yaw(b - a)
+    return 0.0
