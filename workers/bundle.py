@@ -88,6 +88,7 @@ def manifest_for(
             policy_kwargs=kwargs,
             seed=seed,
             steps=result.steps,
+            policy_steps=result.policy_steps,
             stopped=result.stopped,
             curve=result.curve,
             evaluation=result.final,
@@ -182,7 +183,7 @@ def model_card(manifest: Manifest) -> str:
     for s in manifest.subtasks:
         ev: dict[str, Any] = s.evaluation or {}
         lines.append(
-            f"| {s.index} | {s.phase} | {s.goal or '(end of guide)'} | {s.steps} | {s.stopped} | "
+            f"| {s.index} | {s.phase} | {s.goal or '(end of guide)'} | {_steps(s)} | {s.stopped} | "
             f"{_pct(ev.get('success_rate'))} | {_pct(ev.get('collision_rate'))} | "
             f"{ev.get('mean_steps_to_goal') or '-'} |"
         )
@@ -202,6 +203,12 @@ def model_card(manifest: Manifest) -> str:
 
 def _pct(value: float | None) -> str:
     return "-" if value is None else f"{100 * value:.1f} %"
+
+
+def _steps(entry: SubtaskEntry) -> str:
+    if entry.policy_steps is None:
+        return str(entry.steps)
+    return f"{entry.steps} (policy of step {entry.policy_steps}, its best evaluation)"
 
 
 def plot_curves(results: Sequence[TrainResult], out: Path) -> None:

@@ -6,9 +6,11 @@ Each class does one job, in the style of ``stable_baselines3.common.callbacks``.
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
@@ -22,14 +24,44 @@ StopFn = Callable[[], bool]
 
 
 class ResumableEvalCallback(EvalCallback):
-    """``EvalCallback`` whose ``evaluations.npz`` history continues across restarts.
+    """``EvalCallback`` whose ``evaluations.npz`` history continues across restarts and which
+    keeps the policy of its best evaluation (by success rate) at ``best_path``.
 
     ``restore(upto)`` reloads the history the previous run wrote (entries after step ``upto``,
     the checkpoint the run resumes from, are dropped: those steps are redone).
     """
 
+    def __init__(self, *args: Any, best_path: Path | None = None, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.best_path = best_path
+        """Where the policy of the best evaluation so far is kept (None: not kept)."""
+        self.best: tuple[int, float] | None = None
+        """``(steps, success rate)`` of the kept policy: the first evaluation with the highest
+        success rate."""
+
+    def _on_step(self) -> bool:
+        evaluations = len(self.evaluations_successes)
+        go_on = super()._on_step()
+        rate = self.last_success_rate
+        if self.best_path is not None and len(self.evaluations_successes) > evaluations:
+            assert rate is not None
+            if self.best is None or rate > self.best[1]:
+                self.best = (int(self.num_timesteps), rate)
+                self.model.save(self.best_path)
+                self.best_path.with_suffix(".json").write_text(
+                    json.dumps({"steps": self.best[0], "success_rate": rate})
+                )
+        return go_on
+
     def restore(self, upto: int) -> None:
-        """Load the earlier evaluations of ``log_path`` up to step ``upto`` (if any)."""
+        """Load the earlier evaluations of ``log_path`` up to step ``upto`` (if any), and the
+        kept best policy if it is not from a later step."""
+        if self.best_path is not None:
+            record = self.best_path.with_suffix(".json")
+            if record.is_file() and self.best_path.is_file():
+                doc = json.loads(record.read_text())
+                if int(doc["steps"]) <= upto:
+                    self.best = (int(doc["steps"]), float(doc["success_rate"]))
         if self.log_path is None:
             return
         path = Path(self.log_path)

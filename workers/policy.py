@@ -69,6 +69,8 @@ class SubtaskEntry(BaseModel):
     policy_kwargs: dict[str, Any]
     seed: int
     steps: int
+    policy_steps: int | None = None
+    """The kept policy's steps when not the last (``TrainResult.policy_steps``)."""
     stopped: str
     curve: list[tuple[int, float]]
     evaluation: dict[str, Any] | None

@@ -85,6 +85,10 @@ class TrainResult:
     """Steps restored from a checkpoint at the start of this call (0: fresh start)."""
     stopped: Stopped
     """Why training ended: the budget, the target success rate, or a cancel request."""
+    policy_steps: int | None = None
+    """Steps of the policy kept when the budget ran out before the target: that of the best
+    periodic evaluation (the first with the highest success rate), if better than the last one;
+    None: the policy at ``steps``."""
     curve: list[tuple[int, float]] = field(default_factory=list)
     """``(steps, success rate)`` of every periodic evaluation."""
     final: dict[str, Any] | None = None
@@ -197,6 +201,7 @@ def train_subtask(
         warn=False,
         verbose=0,
         callback_after_eval=StopOnSuccessRate(training.target_success),
+        best_path=out / "best_model.zip",
     )
     evaluation.restore(resumed)
     every = training.checkpoint_freq or training.eval_freq
@@ -237,6 +242,8 @@ def train_subtask(
         stopped=stopped,
         curve=evaluation.success_curve,
     )
+    if stopped == "budget":
+        model, result.policy_steps = keep_best_policy(model, evaluation, training, env)
     if stopped != "cancelled":
         final = out / "model.zip"
         model.save(final)
@@ -281,6 +288,20 @@ def _model(
     assert shape is not None
     params = hyperparameters(training, int(np.prod(shape)))
     return cls("MlpPolicy", env, seed=seed, device="cpu", verbose=0, **params), 0
+
+
+def keep_best_policy(
+    model: BaseAlgorithm,
+    evaluation: ResumableEvalCallback,
+    training: TrainingSpec,
+    env: DummyVecEnv,
+) -> tuple[BaseAlgorithm, int | None]:
+    """The policy to keep after a budget ran out: the best evaluation's when it beat the last
+    one (a policy that was good once and then unlearned), else ``model``."""
+    last, best, path = evaluation.last_success_rate, evaluation.best, evaluation.best_path
+    if best is None or last is None or best[1] <= last or path is None or not path.is_file():
+        return model, None
+    return ALGORITHMS[training.algorithm].load(path, env=env, device="cpu"), best[0]
 
 
 def _checkpoint(model: BaseAlgorithm, folder: Path, steps: int) -> None:

@@ -10,12 +10,13 @@ from typing import Any
 import numpy as np
 import pytest
 from stable_baselines3 import SAC
+from stable_baselines3.common.vec_env import DummyVecEnv
 
 from planner.plan import MissionPlan
 from planner.serialize import plan_from_dict, plan_to_dict
 from workers.callbacks import ResumableEvalCallback, StopOnSuccessRate
 from workers.mission import MissionError, MissionSpec
-from workers.training import TrainingError, subtask_env, train_subtask
+from workers.training import TrainingError, keep_best_policy, subtask_env, train_subtask
 from workers.training_spec import SubtaskJob, TrainingSpec
 
 from .missions import tiny_mission
@@ -198,3 +199,41 @@ def test_whole_lasso_mode_trains_one_agent(
     assert len(env.legs) == len(plan.subtasks)  # one course through every sub-task
     env.close()
     assert train_subtask(spec, tmp_path / "g").steps == 64
+
+
+def test_the_best_evaluation_keeps_its_policy(
+    mission: MissionSpec, plan: MissionPlan, tmp_path: Path
+) -> None:
+    out = tmp_path / "job"
+    result = train_subtask(job(mission, plan, n_timesteps=200), out)
+    record = json.loads((out / "best_model.json").read_text())
+    rates = [r for _, r in result.curve]
+    assert record == {"steps": result.curve[rates.index(max(rates))][0], "success_rate": max(rates)}
+    assert SAC.load(out / "best_model.zip", device="cpu").num_timesteps == record["steps"]
+    assert result.policy_steps == (record["steps"] if max(rates) > rates[-1] else None)
+
+
+def test_a_budget_run_out_after_unlearning_keeps_thekeep_best_policy(
+    mission: MissionSpec, plan: MissionPlan, tmp_path: Path
+) -> None:
+    training = mission.training
+    env = DummyVecEnv([lambda: subtask_env(mission, plan, training, 0)])
+    best = SAC("MlpPolicy", env, policy_kwargs={"net_arch": [8]}, seed=1, device="cpu")
+    last = SAC("MlpPolicy", env, policy_kwargs={"net_arch": [8]}, seed=2, device="cpu")
+    path = tmp_path / "best_model.zip"
+    best.save(path)
+    path.with_suffix(".json").write_text(json.dumps({"steps": 100, "success_rate": 1.0}))
+    evaluation = ResumableEvalCallback(env, verbose=0, best_path=path)
+    evaluation.restore(150)
+    assert evaluation.best == (100, 1.0)
+    evaluation.evaluations_successes = [[True, True], [True, False]]
+    kept, steps = keep_best_policy(last, evaluation, training, env)
+    assert steps == 100
+    for key, value in best.policy.state_dict().items():
+        assert np.array_equal(value.numpy(), kept.policy.state_dict()[key].numpy()), key
+    evaluation.evaluations_successes.append([True, True])
+    assert keep_best_policy(last, evaluation, training, env) == (last, None)
+    stale = ResumableEvalCallback(env, verbose=0, best_path=path)
+    stale.restore(50)  # the kept policy is from a step the resumed run redoes
+    assert stale.best is None
+    env.close()
