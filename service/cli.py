@@ -322,8 +322,8 @@ def worker(
     loglevel: Annotated[str, typer.Option(help="Celery log level.")] = "INFO",
 ) -> None:
     """Run a Celery worker for the configured broker and database (migrate them first)."""
+    from service.jobs.celery_app import run_worker
     from service.settings import Settings
-    from workers.celery_app import run_worker
 
     run_worker(Settings(), concurrency=concurrency, loglevel=loglevel)
 

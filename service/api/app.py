@@ -32,10 +32,10 @@ OPEN_API_WARNING = (
 
 
 def default_enqueue(settings: Settings) -> Enqueue:
-    """Enqueue through Celery (``workers.tasks.enqueue_mission``), imported on first use."""
+    """Enqueue through Celery (``service.jobs.tasks.enqueue_mission``), imported on first use."""
 
     def enqueue(mission_id: str) -> None:
-        from workers.tasks import enqueue_mission
+        from service.jobs.tasks import enqueue_mission
 
         enqueue_mission(mission_id, settings)
 
@@ -44,7 +44,7 @@ def default_enqueue(settings: Settings) -> Enqueue:
 
 def _import_worker_code() -> None:
     try:
-        import workers.tasks  # noqa: F401
+        import service.jobs.tasks  # noqa: F401
     except Exception as error:
         log.warning("cannot load the worker code to enqueue missions: %s", error)
 

@@ -27,10 +27,10 @@ def database_state(database: Database) -> tuple[ComponentState, str | None]:
 
 
 def broker_state(settings: Settings) -> tuple[ComponentState, str | None]:
-    """Whether the broker answers (``workers.celery_app.broker_ok``); unknown when the
+    """Whether the broker answers (``service.jobs.celery_app.broker_ok``); unknown when the
     worker code cannot be imported or the check itself fails."""
     try:
-        from workers.celery_app import broker_ok
+        from service.jobs.celery_app import broker_ok
     except Exception as error:
         return "unknown", f"cannot load the worker code: {error}"
     try:

@@ -13,7 +13,7 @@ from service.db import Database
 from service.settings import Settings
 
 Enqueue = Callable[[str], None]
-"""Sends a committed mission to the workers (``workers.tasks.enqueue_mission``)."""
+"""Sends a committed mission to the workers (``service.jobs.tasks.enqueue_mission``)."""
 
 
 @dataclass

@@ -1,4 +1,4 @@
-"""A ``workers.steps.Dispatch`` that records what would have been sent, for the task tests."""
+"""A ``service.jobs.steps.Dispatch`` that records what would have been sent, for the task tests."""
 
 from __future__ import annotations
 

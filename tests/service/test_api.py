@@ -297,7 +297,7 @@ def test_healthz_database_down_and_reads_are_503(
 def test_broker_state_without_worker_code(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
     import sys
 
-    monkeypatch.setitem(sys.modules, "workers.celery_app", None)
+    monkeypatch.setitem(sys.modules, "service.jobs.celery_app", None)
     state, problem = health.broker_state(settings_for(tmp_path, "sqlite://"))
     assert state == "unknown"
     assert problem is not None and "worker code" in problem

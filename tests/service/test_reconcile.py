@@ -1,4 +1,4 @@
-"""``workers.reconcile``: what a pass sends again, on SQLite and PostgreSQL, and that two
+"""``service.jobs.reconcile``: what a pass sends again, on SQLite and PostgreSQL, and that two
 reconcilers at once send each piece of work once."""
 
 from __future__ import annotations
@@ -12,11 +12,11 @@ from sqlalchemy import create_engine, text, update
 
 from service import repository
 from service.db import Database
+from service.jobs.reconcile import DrainWatch, clean_broker, reconcile_once
 from service.models import Job, JobStatus, Mission, MissionStatus, utcnow
 from service.repository import recovery
 from service.settings import Settings
 from tests.service.dispatch import Recorder
-from workers.reconcile import DrainWatch, clean_broker, reconcile_once
 
 
 @pytest.fixture

@@ -1,4 +1,4 @@
-"""The task logic (``workers.steps``) on a real SQLite database and real tiny trainings, with
+"""The task logic (``service.jobs.steps``) on a real SQLite database and real tiny trainings, with
 the follow-up tasks recorded instead of sent."""
 
 from __future__ import annotations
@@ -16,12 +16,12 @@ from sqlalchemy import update
 
 from service import repository
 from service.db import Database, upgrade
+from service.jobs.progress import JobMonitor
+from service.jobs.steps import assemble_step, plan_step, train_step
 from service.models import Job, JobStatus, MissionStatus, utcnow
 from service.settings import Settings
 from tests.service.dispatch import Recorder
 from tests.workers.missions import tiny_mission
-from workers.progress import JobMonitor
-from workers.steps import assemble_step, plan_step, train_step
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -228,7 +228,7 @@ def test_failure_reasons_name_the_problem() -> None:
     from celery.exceptions import SoftTimeLimitExceeded
 
     from planner.errors import PlanningError
-    from workers.steps import describe
+    from service.jobs.steps import describe
 
     assert describe(PlanningError("no path")) == "no path"
     assert describe(KeyError("x")) == "KeyError: 'x'"

@@ -10,10 +10,10 @@ import pytest
 from kombu.transport import sqlalchemy as kombu_sqla
 from pydantic import ValidationError
 
+from service.jobs.celery_app import broker_ok, make_celery
+from service.jobs.reconcile import queue_size
+from service.jobs.tasks import PLAN, app_for, enqueue_mission
 from service.settings import Settings
-from workers.celery_app import broker_ok, make_celery
-from workers.reconcile import queue_size
-from workers.tasks import PLAN, app_for, enqueue_mission
 
 
 def test_long_cpu_jobs_are_acknowledged_late_one_at_a_time(tmp_path: Path) -> None:

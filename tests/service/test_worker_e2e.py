@@ -21,10 +21,10 @@ from sqlalchemy import text
 
 from service import repository
 from service.db import Database, upgrade
+from service.jobs.tasks import enqueue_mission
 from service.models import Base, JobStatus, MissionStatus
 from service.settings import Settings
 from tests.workers.missions import tiny_mission
-from workers.tasks import enqueue_mission
 
 REPO = Path(__file__).resolve().parents[2]
 REDIS_DB = 13
@@ -97,7 +97,7 @@ class Service:
 
     def start_worker(self) -> subprocess.Popen[bytes]:
         log = (self.logs / f"worker-{len(self.workers)}.log").open("wb")
-        code = "from workers.celery_app import run_worker; run_worker(concurrency=2)"
+        code = "from service.jobs.celery_app import run_worker; run_worker(concurrency=2)"
         process = subprocess.Popen(
             [sys.executable, "-c", code],
             cwd=REPO,
@@ -230,6 +230,6 @@ def test_a_sigkilled_worker_is_replaced_and_jobs_resume_from_checkpoints(
 
 
 def test_broker_health_on_redis(redis_url: str, tmp_path: Path) -> None:
-    from workers.celery_app import broker_ok
+    from service.jobs.celery_app import broker_ok
 
     assert broker_ok(Settings(data_dir=tmp_path, broker_url=redis_url))

@@ -1,8 +1,8 @@
 """The Celery application of the service, configured for long CPU-bound training tasks.
 
-``celery -A workers.celery_app worker`` runs a worker on the environment's settings;
+``celery -A service.jobs.celery_app worker`` runs a worker on the environment's settings;
 ``run_worker(settings)`` does the same from Python (``ltlnav worker``, ``ltlnav serve``). Each
-worker also runs the reconciler (``workers.reconcile``) in a thread of its main process.
+worker also runs the reconciler (``service.jobs.reconcile``) in a thread of its main process.
 
 Brokers: the default ``sqla+sqlite`` (kombu's SQLAlchemy transport, no server; polled every
 ``broker_polling_interval``) or Redis. Redis redelivers a task unacknowledged for
@@ -32,7 +32,7 @@ log = logging.getLogger(__name__)
 QUEUE = "ltlnav"
 """The one queue of the service's tasks."""
 
-TASK_MODULES = ["workers.tasks"]
+TASK_MODULES = ["service.jobs.tasks"]
 
 PRELOAD = ("workers.training", "workers.bundle", "planner.plot", "torch._dynamo")
 """Modules a worker imports before its pool forks: torch, stable-baselines3, matplotlib, and
@@ -195,7 +195,7 @@ def _start_reconciler(sender: Any = None, **_: Any) -> None:
     worker_app = getattr(sender, "app", None)
     if not isinstance(worker_app, LtlnavCelery) or id(worker_app) in _reconcilers:
         return
-    from workers.reconcile import reconcile_forever
+    from service.jobs.reconcile import reconcile_forever
 
     stop = threading.Event()
     _reconcilers[id(worker_app)] = stop

@@ -1,5 +1,5 @@
 """The work of each Celery task as a plain function: plan a mission, train one sub-task,
-assemble the bundle. ``workers.tasks`` wraps them; tests call them directly.
+assemble the bundle. ``service.jobs.tasks`` wraps them; tests call them directly.
 
 The database is the source of truth. Every step first claims its piece of work with a
 compare-and-set (queued -> planning, job queued -> running, training -> evaluating), so a
@@ -27,11 +27,11 @@ from planner.guidance import Guide
 from planner.plan import MissionPlan
 from service import repository
 from service.db import Database
+from service.jobs.progress import JobMonitor, mission_heartbeat
 from service.models import JobStatus, MissionStatus
 from service.settings import Settings
 from workers.mission import MissionSpec, parse_mission
 from workers.pipeline import assemble, plan_for, subtask_jobs
-from workers.progress import JobMonitor, mission_heartbeat
 
 log = logging.getLogger(__name__)
 

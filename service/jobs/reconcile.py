@@ -32,10 +32,10 @@ from sqlalchemy.exc import DBAPIError
 
 from service import repository
 from service.db import make_engine
+from service.jobs.celery_app import QUEUE, LtlnavCelery, is_sqla
+from service.jobs.steps import Dispatch, database_for
 from service.models import MissionStatus
 from service.settings import Settings
-from workers.celery_app import QUEUE, LtlnavCelery, is_sqla
-from workers.steps import Dispatch, database_for
 
 log = logging.getLogger(__name__)
 
@@ -140,7 +140,7 @@ def clean_broker(settings: Settings) -> int:
 
 def reconcile_forever(app: LtlnavCelery, stop: threading.Event) -> None:
     """Reconcile every ``reconcile_seconds`` until ``stop`` is set (a worker's thread)."""
-    from workers.tasks import CeleryDispatch
+    from service.jobs.tasks import CeleryDispatch
 
     settings = app.settings
     dispatch = CeleryDispatch(app)

@@ -1,7 +1,7 @@
 """The Celery tasks of a mission: ``plan_mission`` -> chord(group(``train_subtask`` per
 sub-task), ``assemble_mission``), and the functions that send them.
 
-The tasks are thin: their work lives in ``workers.steps`` (idempotent, database first). Tasks
+The tasks are thin: their work lives in ``service.jobs.steps`` (idempotent, database first). Tasks
 are sent by name so the API process needs neither torch nor the task code; ``train_subtask``
 messages carry a task id fixed per job so that a resent one stands in for a lost chord
 member in the result backend.
@@ -16,8 +16,8 @@ from typing import Any
 from celery import Celery, Task, chord, group, shared_task
 from celery.canvas import Signature
 
+from service.jobs.celery_app import LtlnavCelery, make_celery
 from service.settings import Settings, get_settings
-from workers.celery_app import LtlnavCelery, make_celery
 
 log = logging.getLogger(__name__)
 
@@ -44,7 +44,7 @@ def train_task_id(mission_id: str, index: int) -> str:
 
 
 class CeleryDispatch:
-    """``workers.steps.Dispatch`` through a Celery app."""
+    """``service.jobs.steps.Dispatch`` through a Celery app."""
 
     def __init__(self, app: Celery) -> None:
         self.app = app
@@ -86,7 +86,7 @@ def _settings(task: Task[Any, Any]) -> Settings:
 @shared_task(bind=True, name=PLAN)
 def plan_mission(self: Task[Any, Any], mission_id: str) -> str:
     """Plan the mission, store the plan and its jobs, send the training chord."""
-    from workers.steps import plan_step  # torch and the planner: workers only, not the API
+    from service.jobs.steps import plan_step  # torch and the planner: workers only, not the API
 
     outcome = plan_step(_settings(self), mission_id, CeleryDispatch(self.app))
     log.info("plan_mission %s: %s", mission_id, outcome)
@@ -96,7 +96,7 @@ def plan_mission(self: Task[Any, Any], mission_id: str) -> str:
 @shared_task(bind=True, name=TRAIN)
 def train_subtask(self: Task[Any, Any], mission_id: str, index: int) -> str:
     """Train one sub-task (resuming from its checkpoints) and record the result."""
-    from workers.steps import train_step
+    from service.jobs.steps import train_step
 
     in_chord = self.request.chord is not None
     outcome = train_step(_settings(self), mission_id, index, CeleryDispatch(self.app), in_chord)
@@ -107,7 +107,7 @@ def train_subtask(self: Task[Any, Any], mission_id: str, index: int) -> str:
 @shared_task(bind=True, name=ASSEMBLE)
 def assemble_mission(self: Task[Any, Any], mission_id: str) -> str:
     """Evaluate the whole mission and write its bundle once every job is done."""
-    from workers.steps import assemble_step
+    from service.jobs.steps import assemble_step
 
     outcome = assemble_step(_settings(self), mission_id)
     log.info("assemble_mission %s: %s", mission_id, outcome)
