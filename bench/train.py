@@ -25,14 +25,17 @@ Run ``.venv/bin/python bench/train.py`` (the ``table1`` preset; hours on two cor
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import multiprocessing
 import os
+import signal
 import statistics
 import sys
 import time
 import zipfile
+from collections.abc import Iterator
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
@@ -168,12 +171,31 @@ def assemble_row(row: Row, out: Path) -> None:
     print(f"{row.folder}: mission success {done.evaluation.success_rate:.1%}", flush=True)
 
 
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+@contextlib.contextmanager
+def _reaped(pool: ProcessPoolExecutor) -> Iterator[None]:
+    """Kill the pool's training processes when the run is interrupted: a forkserver child
+    outlives its parent and would go on training the jobs already handed to it."""
+    try:
+        yield
+    except BaseException:
+        # ProcessPoolExecutor has no public way to kill running jobs.
+        for process in list(getattr(pool, "_processes", {}).values()):
+            process.terminate()
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+
+
 def run_rows(rows: list[Row], out: Path, jobs: int) -> None:
     """Train every row's jobs, ``jobs`` at a time, then roll out the complete rows."""
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload(["workers.training"])
     planned = [(row, *row_jobs(row, out)) for row in rows]
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=context) as pool:
+    signal.signal(signal.SIGTERM, _interrupt)
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=context) as pool, _reaped(pool):
         pending: dict[Future[dict[str, Any]], tuple[Row, int]] = {}
         for row, _, _, row_specs in planned:
             for spec in row_specs:
