@@ -15,6 +15,8 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 
+from workers.evaluation import SubtaskEvaluation
+
 ProgressFn = Callable[[int, float | None, int], None]
 """``on_progress(steps, success_rate, total)``: env steps done (restored ones included), the
 success rate of the latest periodic evaluation (None before the first) and the budget."""
@@ -95,18 +97,35 @@ class ResumableEvalCallback(EvalCallback):
 
 class StopOnSuccessRate(BaseCallback):
     """Stop training once the parent evaluation's success rate reaches ``target``
-    (``callback_after_eval`` of a ``ResumableEvalCallback``)."""
+    (``callback_after_eval`` of a ``ResumableEvalCallback``).
 
-    def __init__(self, target: float) -> None:
+    With ``confirm`` (a larger evaluation of the current policy, e.g. the final one), a periodic
+    rate at the target only stops training when ``confirm()`` reaches it too: a 50-episode
+    evaluation at 96 % measured 93 % over 200 episodes. ``confirmed`` keeps the evaluation that
+    stopped training, ``confirmations`` every ``(steps, success rate)`` asked for.
+    """
+
+    def __init__(
+        self, target: float, confirm: Callable[[], SubtaskEvaluation] | None = None
+    ) -> None:
         super().__init__()
         self.target = target
+        self.confirm = confirm
         self.reached = False
+        self.confirmed: SubtaskEvaluation | None = None
+        self.confirmations: list[tuple[int, float]] = []
 
     def _on_step(self) -> bool:
         parent = self.parent
         assert isinstance(parent, ResumableEvalCallback)
         rate = parent.last_success_rate
         self.reached = rate is not None and rate >= self.target
+        if self.reached and self.confirm is not None:
+            check = self.confirm()
+            self.confirmations.append((int(self.num_timesteps), check.success_rate))
+            self.logger.record("eval/confirmed_success_rate", check.success_rate)
+            self.reached = check.success_rate >= self.target
+            self.confirmed = check if self.reached else None
         return not self.reached
 
 

@@ -48,7 +48,7 @@ from workers.callbacks import (
     checkpoints,
     prune_checkpoints,
 )
-from workers.evaluation import evaluate_subtask
+from workers.evaluation import SubtaskEvaluation, evaluate_subtask
 from workers.mission import MissionSpec, parse_mission
 from workers.training_spec import SubtaskJob, TrainingSpec
 
@@ -169,7 +169,8 @@ def train_subtask(
     ``on_progress(steps, success_rate, total)`` is called about once a second and after every
     evaluation; ``should_stop()`` is asked about twice a second and a True ends the job after a
     checkpoint (``stopped="cancelled"``). Stops early when a periodic evaluation reaches
-    ``target_success``. Deterministic for ``spec.seed`` on one machine.
+    ``target_success`` and the final evaluation (``final_eval_episodes``), run then, confirms
+    it; else training goes on. Deterministic for ``spec.seed`` on one machine.
     """
     t0 = time.monotonic()
     out = Path(out_dir)
@@ -177,7 +178,7 @@ def train_subtask(
     stored = out / "result.json"
     if stored.is_file():
         done = TrainResult.from_json(json.loads(stored.read_text()))
-        if done.stopped == "target" or done.steps >= training.n_timesteps:
+        if done.steps >= training.n_timesteps or _meets(done, training.target_success):
             return done
     mission, plan = _load_job(spec)
     out.mkdir(parents=True, exist_ok=True)
@@ -188,8 +189,18 @@ def train_subtask(
     )
     env.seed(spec.seed)
     eval_env.seed(spec.seed + 1)
+    test_env = subtask_env(mission, plan, training, spec.subtask, evaluation=True)
     folder = out / "checkpoints"
     model, resumed = _model(training, env, folder, spec.seed)
+
+    def final_evaluation() -> SubtaskEvaluation:
+        return evaluate_subtask(
+            lambda obs: model.predict(obs, deterministic=True)[0],
+            test_env,
+            training.final_eval_episodes,
+            seed=spec.seed + 2,
+        )
+
     model.set_logger(configure(str(out / "logs" / f"run_{resumed}"), ["csv", "tensorboard"]))
     evaluation = ResumableEvalCallback(
         eval_env,
@@ -200,7 +211,7 @@ def train_subtask(
         deterministic=True,
         warn=False,
         verbose=0,
-        callback_after_eval=StopOnSuccessRate(training.target_success),
+        callback_after_eval=StopOnSuccessRate(training.target_success, final_evaluation),
         best_path=out / "best_model.zip",
     )
     evaluation.restore(resumed)
@@ -247,25 +258,25 @@ def train_subtask(
     if stopped != "cancelled":
         final = out / "model.zip"
         model.save(final)
-        test_env = subtask_env(mission, plan, training, spec.subtask, evaluation=True)
-        try:
-            result.final = evaluate_subtask(
-                lambda obs: model.predict(obs, deterministic=True)[0],
-                test_env,
-                training.final_eval_episodes,
-                seed=spec.seed + 2,
-            ).to_json()
-        finally:
-            test_env.close()
+        confirmed = stopper.confirmed if stopped == "target" else None
+        result.final = (confirmed or final_evaluation()).to_json()
         result.model_path = str(final)
     env.close()
     eval_env.close()
+    test_env.close()
     result.seconds = time.monotonic() - t0
     if progress is not None:
         progress.report()
     if stopped != "cancelled":
         stored.write_text(json.dumps(result.to_json(), indent=1))
     return result
+
+
+def _meets(result: TrainResult, target: float) -> bool:
+    """Whether a stored result stopped at the target and its final evaluation reaches
+    ``target`` (a result below it, e.g. after ``target_success`` was raised, trains on)."""
+    rate = (result.final or {}).get("success_rate")
+    return result.stopped == "target" and (rate is None or rate >= target)
 
 
 def _model(

@@ -100,10 +100,22 @@ takes stable-baselines3's default for the algorithm, except ``buffer_size`` (off
 ``n_timesteps``, since a larger buffer never fills and every checkpoint stores it whole."""
 
 
-TRAINING_ENV_DEFAULTS: dict[str, Any] = {"curriculum": 0.7}
+TRAINING_ENV_DEFAULTS: dict[str, Any] = {"curriculum": 0.7, "rays": 16}
 """Env options training uses unless ``env`` sets them (measured in ``bench/LEARNING.md``): 70 %
 of training episodes start at a random r-ball of the guide with the progress index to match,
-so the far end of a long guide is trained from the start; evaluations always use 0."""
+so the far end of a long guide is trained from the start (evaluations always use 0); 16
+lidar-like rays in the observation (training and evaluation alike), so that keeping off a box
+is a function of what the robot senses, not of a memorised map."""
+
+STALL_ENV_DEFAULTS: dict[str, Any] = {"stall_steps": 30}
+"""Training defaults of the guide rewards (``STALL_MODES``): an episode that reaches no new
+r-ball for 30 steps ends as a failure with the mode's crash reward (``stall_penalty``), so
+leaving the guide costs what a crash costs and the off-guide wandering never fills the replay
+buffer. Evaluations never stop a stalled episode."""
+
+STALL_MODES = frozenset({"rrt", "g-rrt"})
+"""Reward modes that take ``STALL_ENV_DEFAULTS``: ours. ``rrt-paper`` is the paper's reward
+as published; ``ned`` and ``tl`` must not learn from the guide."""
 
 HEADING_ENV_DEFAULTS: dict[str, Any] = {"min_forward": 0.2}
 """Defaults for robots driven by (forward, turn) actions, in training and evaluation alike (it
@@ -167,7 +179,11 @@ class TrainingSpec(BaseModel):
         200, ge=1, description="Episodes of the final sub-task evaluation (200 in the paper)."
     )
     target_success: float = Field(
-        0.95, gt=0, le=1, description="Stop early once a periodic evaluation reaches this rate."
+        0.95,
+        gt=0,
+        le=1,
+        description="Stop early once a periodic evaluation reaches this rate and the final "
+        "evaluation (final_eval_episodes), run at that point, confirms it.",
     )
     checkpoint_freq: int | None = Field(
         None, ge=1, description="Env steps between checkpoints (None: every eval_freq steps)."
@@ -262,6 +278,9 @@ class TrainingSpec(BaseModel):
         defaults = dict(TRAINING_ENV_DEFAULTS)
         if model in HEADING_FEATURES:
             defaults.update(HEADING_ENV_DEFAULTS)
+        if self.reward.mode in STALL_MODES:
+            crash = reward_mode(self.reward.mode, self.reward.config()).crash
+            defaults.update(STALL_ENV_DEFAULTS, stall_penalty=crash)
         return {**defaults, **self.env}
 
     def policy_kwargs(self) -> dict[str, Any]:

@@ -117,6 +117,20 @@ def test_evaluation_options_start_at_the_real_start_with_noise() -> None:
     assert spec.training.env_options(spec.robot.model).curriculum == 0.7
 
 
+def test_guide_rewards_end_a_stall_with_the_crash_reward_and_every_mode_sees_rays() -> None:
+    ours = tiny_mission().training
+    trained, evaluated = ours.env_options("point"), ours.eval_env_options("point")
+    assert (trained.stall_steps, trained.stall_penalty, trained.rays) == (30, -10.0, 16)
+    assert (evaluated.stall_steps, evaluated.rays) == (0, 16)  # never cut short; same inputs
+    harsher = tiny_mission(reward={"constants": {"crash": -5.0}}).training
+    assert harsher.env_options("point").stall_penalty == -5.0
+    for mode in ("rrt-paper", "ned", "tl"):
+        other = tiny_mission(reward={"mode": mode}).training.env_options("point")
+        assert (other.stall_steps, other.stall_penalty, other.rays) == (0, None, 16)
+    chosen = tiny_mission(env={"stall_steps": 0, "rays": 0}).training.env_options("point")
+    assert (chosen.stall_steps, chosen.rays) == (0, 0)
+
+
 def test_measured_training_defaults_apply_by_robot_and_yield_to_the_mission() -> None:
     training = tiny_mission().training
     car, point = training.env_options("unicycle"), training.env_options("point")

@@ -10,11 +10,13 @@ from typing import Any
 import numpy as np
 import pytest
 from stable_baselines3 import SAC
+from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from planner.plan import MissionPlan
 from planner.serialize import plan_from_dict, plan_to_dict
 from workers.callbacks import ResumableEvalCallback, StopOnSuccessRate
+from workers.evaluation import SubtaskEvaluation
 from workers.mission import MissionError, MissionSpec
 from workers.training import TrainingError, keep_best_policy, subtask_env, train_subtask
 from workers.training_spec import SubtaskJob, TrainingSpec
@@ -157,6 +159,43 @@ def test_stop_on_success_rate_reads_the_last_evaluation(
     assert not stopper._on_step() and stopper.reached
     assert evaluation.last_success_rate == pytest.approx(2 / 3)
     env.close()
+
+
+def test_a_periodic_success_stops_only_when_the_confirmation_reaches_the_target(
+    mission: MissionSpec, plan: MissionPlan
+) -> None:
+    env = subtask_env(mission, plan, mission.training, 0, evaluation=True)
+    rates = iter([0.5, 0.75])
+
+    def confirm() -> SubtaskEvaluation:
+        return SubtaskEvaluation(4, next(rates), 0.0, 0.0, None)
+
+    stopper = StopOnSuccessRate(0.6, confirm)
+    evaluation = ResumableEvalCallback(env, callback_after_eval=stopper, verbose=0)
+    model = SAC("MlpPolicy", env, policy_kwargs={"net_arch": [8]}, learning_starts=10)
+    model.set_logger(Logger(folder=None, output_formats=[]))
+    evaluation.init_callback(model)
+    evaluation.evaluations_successes = [[True, True, False]]
+    assert stopper._on_step() and not stopper.reached and stopper.confirmed is None
+    assert not stopper._on_step() and stopper.reached
+    assert stopper.confirmed is not None and stopper.confirmed.success_rate == 0.75
+    assert [rate for _, rate in stopper.confirmations] == [0.5, 0.75]
+    env.close()
+
+
+def test_a_stored_result_below_a_raised_target_trains_on(
+    mission: MissionSpec, plan: MissionPlan, tmp_path: Path
+) -> None:
+    first = train_subtask(job(mission, plan), tmp_path)
+    stored = json.loads((tmp_path / "result.json").read_text())
+    stored["stopped"] = "target"
+    stored["final"]["success_rate"] = 0.5
+    (tmp_path / "result.json").write_text(json.dumps(stored))
+    bigger = first.steps + 100
+    kept = train_subtask(job(mission, plan, target_success=0.4, n_timesteps=bigger), tmp_path)
+    assert kept.stopped == "target" and kept.steps == first.steps
+    again = train_subtask(job(mission, plan, target_success=0.6, n_timesteps=bigger), tmp_path)
+    assert again.resumed_from == first.steps and again.steps == bigger
 
 
 @pytest.mark.parametrize(
