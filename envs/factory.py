@@ -93,6 +93,10 @@ class EnvOptions:
     stall_penalty: float | None = None
     """Reward of a stall: None ends a stall as a truncation (value bootstrapped, no penalty);
     a number ends it as a termination with that reward (a failure the critic learns)."""
+    dense_progress: bool = False
+    """Pay the ``rrt``/``g-rrt`` gain on every step as the decrease of the continuous
+    distance-to-go ``D_min`` of the next ball plus the distance to that ball's centre (a
+    potential, so a round trip earns nothing), not only on entering a new ball."""
     min_forward: float | None = None
     """Robots driven by (forward, turn) actions (unicycle, racecar) only: map the policy's
     forward component from ``[-1, 1]`` onto ``[min_forward, 1]`` (e.g. 0.2: always creep
@@ -134,6 +138,7 @@ class EnvOptions:
             "must be in [0, pi]",
         )
         need(integer("stall_steps") and self.stall_steps >= 0, "stall_steps", "must be >= 0")
+        need(isinstance(self.dense_progress, bool), "dense_progress", "must be true or false")
         need(
             self.stall_penalty is None or number("stall_penalty"), "stall_penalty", "must be finite"
         )

@@ -159,6 +159,15 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         self._since = 0
         self._togo = first.guide.length + first.rest
         self._index = -1
+        self._dense = options.dense_progress
+        self._potential = 0.0
+        self._ahead = [
+            (
+                [tuple(c) for c in leg.guide.centers.tolist()],
+                [float(v) for v in leg.guide.dist_to_go],
+            )
+            for leg in self.legs
+        ]
         self.trail: list[list[float]] = []
         """Workspace points visited in this episode (recorded only for rendering)."""
 
@@ -217,6 +226,7 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         self._t = 0
         self._since = 0
         self.trail = [x] if self.render_mode is not None else []
+        self._potential = self._continuous_togo(x)
         obs = self._obs.build(self.robot.observation(), x, self._index)
         i = self._leg.guide.locate(x)
         d = float(self._leg.guide.dist_to_go[i]) if i >= 0 else math.inf
@@ -293,7 +303,11 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
                 outcome = self._automaton_outcome(x, d)
             if outcome == RUNNING:
                 # togo - _togo: the metres gained, including a move to the next leg (g-rrt).
-                reward = self.mode.step_reward(improved, togo - self._togo, x)
+                gain = togo - self._togo
+                if self._dense:
+                    before, self._potential = self._potential, self._continuous_togo(x)
+                    gain = before - self._potential
+                reward = self.mode.step_reward(improved, gain, x)
                 if self._t >= self.max_steps:
                     truncated = True
                 stall = self.options.stall_steps
@@ -315,6 +329,16 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
             truncated,
             self._info(d, success, crashed, violation, stalled),
         )
+
+    def _continuous_togo(self, x: list[float]) -> float:
+        """Guide left from ``x``: ``D_min`` of the next ball plus the distance to its centre
+        (0 from the last ball on), plus the legs after this one (``dense_progress``)."""
+        leg = self._leg
+        centres, togo = self._ahead[self._leg_k]
+        after = self._index - leg.offset + 1
+        if after >= len(centres):
+            return leg.rest
+        return leg.rest + togo[after] + math.dist(x, centres[after])
 
     def _remap(self, action: np.ndarray) -> np.ndarray:
         """The ``min_forward`` mapping of a validated action (a bad action must not be mapped

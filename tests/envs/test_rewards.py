@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from envs.factory import make_env
+from envs.factory import EnvOptions, make_env
 from envs.rewards import (
     REWARD_MODES,
     AutomatonTracker,
@@ -137,3 +137,41 @@ def test_ned_env_pays_the_distance_to_the_goal_region() -> None:
     _, reward, _, _, _ = env.step(np.zeros(2))
     expected = float(world.regions[sub.goal].distance(env.robot.position()[None])[0])
     assert reward == pytest.approx(-0.005 * expected)
+
+
+def test_dense_progress_pays_the_change_of_a_potential_toward_the_next_ball() -> None:
+    world, plan = planned(2, "<>(g1 && <>g2)")
+    sub = plan.subtasks[0]
+    options = EnvOptions(dense_progress=True)
+    env = make_env(mission("point", 2), sub, "rrt", world=world, plan=plan, options=options)
+    guide = env.legs[0].guide
+    mode = reward_mode("rrt")
+    per_metre, step_cost = mode.constants["progress"], mode.constants["step_cost"]
+
+    def potential(x: np.ndarray, index: int) -> float:
+        if index + 1 >= guide.num_balls:
+            return 0.0
+        return float(guide.dist_to_go[index + 1] + np.linalg.norm(x - guide.centers[index + 1]))
+
+    _, info = env.reset(seed=0, options={"start": 0})
+    x, index = env.robot.position().copy(), info["progress_index"]
+    rng = np.random.default_rng(0)
+    gained = 0.0
+    for t in range(60):
+        towards = guide.centers[min(index + 1, guide.num_balls - 1)] - x
+        action = towards / max(float(np.linalg.norm(towards)), 1e-9)
+        if t % 3 == 2:
+            action = rng.uniform(-1.0, 1.0, 2)  # detours are paid back when they return
+        _, reward, terminated, truncated, info = env.step(action.astype(np.float32))
+        if terminated or truncated:
+            break
+        after, now = env.robot.position().copy(), info["progress_index"]
+        expected = potential(x, index) - potential(after, now)
+        assert reward == pytest.approx(per_metre * expected - step_cost, abs=1e-9)
+        gained += expected
+        x, index = after, now
+    assert gained > 0.5  # the robot went along the guide, and was paid on the way
+    ball_only = make_env(mission("point", 2), sub, "rrt", world=world, plan=plan)
+    ball_only.reset(seed=0, options={"start": 0})
+    _, reward, *_ = ball_only.step(np.zeros(2, dtype=np.float32))
+    assert reward == pytest.approx(-step_cost)  # no new ball: only the step cost
