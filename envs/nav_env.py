@@ -226,7 +226,8 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         self._t = 0
         self._since = 0
         self.trail = [x] if self.render_mode is not None else []
-        self._potential = self._continuous_togo(x)
+        if self._dense:
+            self._potential = self._continuous_togo(x)
         obs = self._obs.build(self.robot.observation(), x, self._index)
         i = self._leg.guide.locate(x)
         d = float(self._leg.guide.dist_to_go[i]) if i >= 0 else math.inf
