@@ -39,6 +39,7 @@ from gymnasium import spaces
 
 from envs.handover import Pose
 from envs.observation import HEADING_FEATURES, ObservationBuilder
+from envs.potential import GuidePotential
 from envs.rays import RayCaster
 from envs.rewards import (
     RUNNING,
@@ -161,13 +162,11 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         self._index = -1
         self._dense = options.dense_progress
         self._potential = 0.0
-        self._ahead = [
-            (
-                [tuple(c) for c in leg.guide.centers.tolist()],
-                [float(v) for v in leg.guide.dist_to_go],
-            )
-            for leg in self.legs
-        ]
+        self._guide_potential = GuidePotential(
+            [leg.guide.centers for leg in self.legs],
+            [leg.guide.dist_to_go for leg in self.legs],
+            [leg.rest for leg in self.legs],
+        )
         self.trail: list[list[float]] = []
         """Workspace points visited in this episode (recorded only for rendering)."""
 
@@ -332,14 +331,8 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         )
 
     def _continuous_togo(self, x: list[float]) -> float:
-        """Guide left from ``x``: ``D_min`` of the next ball plus the distance to its centre
-        (0 from the last ball on), plus the legs after this one (``dense_progress``)."""
-        leg = self._leg
-        centres, togo = self._ahead[self._leg_k]
-        after = self._index - leg.offset + 1
-        if after >= len(centres):
-            return leg.rest
-        return leg.rest + togo[after] + math.dist(x, centres[after])
+        """``envs.potential``'s guide left from ``x`` (``dense_progress``)."""
+        return self._guide_potential.value(self._leg_k, self._index - self._leg.offset, x)
 
     def _remap(self, action: np.ndarray) -> np.ndarray:
         """The ``min_forward`` mapping of a validated action (a bad action must not be mapped
