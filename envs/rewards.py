@@ -288,7 +288,8 @@ class ScaledReward(RewardMode):
     Measured on the car example (``bench/LEARNING.md``): the same shape at a tenth of this scale
     (-1 / +2 / 0.05 per metre / 0.001 a step) trained to 0 % success in 30k steps with every
     other lever on, this scale to a median 100 % on every sub-task; the paper's constants
-    (``rrt-paper``) park the agent."""
+    (``rrt-paper``) park the agent unless ``min_forward`` forbids standing still, and with it
+    still fail the U-turn sub-tasks. Training adds a stall failure (``workers.training_spec``)."""
 
     name = "rrt"
     defaults: ClassVar[dict[str, float]] = {
