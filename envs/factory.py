@@ -178,6 +178,7 @@ def make_env(
     robot: Robot | None = None,
     render_mode: str | None = None,
     options: EnvOptions | None = None,
+    starts: Sequence[Pose] | None = None,
     **overrides: Any,
 ) -> NavEnv:
     """The navigation env of ``subtask`` of ``mission`` under reward mode ``reward``.
@@ -187,8 +188,10 @@ def make_env(
     ``mission.world`` with the robot's start kept clear, as ``MissionSpec.build_world`` does);
     ``plan`` is required by ``tl`` and ``g-rrt`` (automaton, every sub-task) and supplies the
     r-ball radius. ``robot`` shares an already built robot (the env will not close it), e.g.
-    to hand over between the sub-task envs of a mission rollout. ``options`` and keyword
-    ``overrides`` (any ``EnvOptions`` field; ``rewards`` may be a mapping) tune the env.
+    to hand over between the sub-task envs of a mission rollout. ``starts`` replaces the real
+    starts (``envs.handover``), e.g. by the poses measured rollouts handed over in.
+    ``options`` and keyword ``overrides`` (any ``EnvOptions`` field; ``rewards`` may be a
+    mapping) tune the env.
 
     Raises ``EnvConfigError`` (a ``ValueError``) for an unknown reward mode or option, a missing
     plan, a start of the wrong dimension or in collision, and ``RobotConfigError`` (also a
@@ -235,13 +238,15 @@ def make_env(
     heading = legs[0].headings[0]
     if len(spec.start) > world.dim and np.allclose(subtasks[0].start, start):
         heading = float(spec.start[world.dim])
-    starts = [Pose(np.asarray(subtasks[0].start, dtype=float), heading)]
+    real = [Pose(np.asarray(subtasks[0].start, dtype=float), heading)]
     if plan is not None and opts.handover and not mode.whole_lasso:
         k = next((i for i, s in enumerate(plan.subtasks) if s is subtasks[0]), None)
         if k is not None:
             facing = float(spec.start[world.dim]) if len(spec.start) > world.dim else heading
             mission_start = Pose(start, facing)
-            starts = handover_poses(world, plan.subtasks, k, mission_start)
+            real = handover_poses(world, plan.subtasks, k, mission_start)
+    if starts is not None:
+        real = _checked_starts(starts, world)
     own = robot is None
     bot = robot if robot is not None else make_robot(spec.model, world, spec.radius, spec.params)
     try:
@@ -252,7 +257,7 @@ def make_env(
             mode,
             opts,
             max_steps=opts.max_steps or default_max_steps(legs, bot, opts.time_factor),
-            starts=starts,
+            starts=real,
             nba=plan.pruned if plan is not None else None,
             render_mode=render_mode,
             owns_robot=own,
@@ -261,6 +266,22 @@ def make_env(
         if own:
             bot.close()
         raise
+
+
+def _checked_starts(starts: Sequence[Pose], world: World) -> list[Pose]:
+    checked = list(starts)
+    if not checked:
+        raise EnvConfigError("starts", "no start pose given")
+    lo, hi = world.bounds[:, 0], world.bounds[:, 1]
+    for i, pose in enumerate(checked):
+        p = np.asarray(pose.position, dtype=float)
+        if p.shape != (world.dim,) or not np.all(np.isfinite(p)):
+            raise EnvConfigError(f"starts.{i}", f"must be a finite {world.dim}D point")
+        if np.any(p < lo) or np.any(p > hi):
+            raise EnvConfigError(f"starts.{i}", f"{p.tolist()} is outside the world bounds")
+        if not math.isfinite(pose.heading):
+            raise EnvConfigError(f"starts.{i}", f"heading must be finite, got {pose.heading}")
+    return checked
 
 
 def build_course(

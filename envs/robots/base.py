@@ -301,3 +301,8 @@ class Robot(ABC):
     @abstractmethod
     def position(self) -> FloatArray:
         """The state projected into the workspace (``workspace_dim`` long)."""
+
+    def heading(self) -> float:
+        """Yaw (radians) as ``reset`` takes it, so that a pose can be restored; 0 for models
+        without a heading."""
+        return 0.0

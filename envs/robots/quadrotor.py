@@ -255,6 +255,9 @@ class Quadrotor(Robot):
     def position(self) -> FloatArray:
         return np.array(self._s[:3])
 
+    def heading(self) -> float:
+        return self.attitude()[2]
+
     def attitude(self) -> tuple[float, float, float]:
         """Roll, pitch, yaw in radians (ZYX Euler angles), for plots and tests."""
         qw, qx, qy, qz = self._s[6:10]

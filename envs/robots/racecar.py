@@ -353,6 +353,9 @@ class Racecar(Robot):
     def position(self) -> FloatArray:
         return np.array(self._s[:2])
 
+    def heading(self) -> float:
+        return float(self._s[2])
+
     def close(self) -> None:
         """Disconnect this robot's PyBullet server (idempotent)."""
         if self.client >= 0:

@@ -99,3 +99,6 @@ class Unicycle(Robot):
 
     def position(self) -> FloatArray:
         return np.array([self._x, self._y])
+
+    def heading(self) -> float:
+        return self._theta
