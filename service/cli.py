@@ -213,6 +213,13 @@ def train(
             f"  sub-task {r.subtask}: {r.steps} steps ({r.stopped}), success {shown} over "
             f"{final.get('episodes', 0)} episodes"
         )
+    for repair in result.repairs:
+        subtasks = ", ".join(map(str, repair.subtasks))
+        typer.echo(
+            f"  hand-over repair {repair.round} (sub-tasks {subtasks}): mission success "
+            f"{100 * repair.success_before:.0f} % -> {100 * repair.success_after:.0f} %, "
+            + ("kept" if repair.kept else "discarded")
+        )
     ev = result.evaluation
     typer.echo(f"mission {_rollout_summary(ev)}")
     typer.echo(f"bundle written to {result.bundle}")

@@ -90,6 +90,7 @@ def manifest_for(
             steps=result.steps,
             policy_steps=result.policy_steps,
             stopped=result.stopped,
+            repairs=result.repairs,
             curve=result.curve,
             evaluation=result.final,
         )
@@ -206,9 +207,15 @@ def _pct(value: float | None) -> str:
 
 
 def _steps(entry: SubtaskEntry) -> str:
-    if entry.policy_steps is None:
-        return str(entry.steps)
-    return f"{entry.steps} (policy of step {entry.policy_steps}, its best evaluation)"
+    shown = str(entry.steps)
+    if entry.policy_steps is not None:
+        shown += f" (policy of step {entry.policy_steps}, its best evaluation)"
+    if entry.repairs:
+        shown += (
+            f" (incl. {entry.repairs} hand-over repair round(s): success measured from the "
+            "poses the mission rollouts handed it over in)"
+        )
+    return shown
 
 
 def plot_curves(results: Sequence[TrainResult], out: Path) -> None:

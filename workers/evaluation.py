@@ -22,6 +22,7 @@ import numpy as np
 from gymnasium import spaces
 
 from envs.factory import EnvOptions, make_env
+from envs.handover import Pose
 from envs.nav_env import NavEnv
 from envs.rewards import RegionLabeler
 from envs.robots import Robot, make_robot
@@ -144,6 +145,9 @@ class MissionEnv(gym.Env[np.ndarray, np.ndarray]):
         """Index into ``trace`` where each suffix cycle began."""
         self.trail: list[list[float]] = []
         """Every position visited in this episode."""
+        self.handovers: list[tuple[int, Pose]] = []
+        """``(sub-task, pose)`` of every stage begun in this episode: where the robot stood
+        (and faced) when that sub-task took it over."""
 
     def _obs(self, obs: np.ndarray) -> np.ndarray:
         return np.append(obs, np.float32(self.stage)).astype(np.float32)
@@ -156,6 +160,8 @@ class MissionEnv(gym.Env[np.ndarray, np.ndarray]):
             self.trace.append(label)
 
     def _begin_stage(self) -> None:
+        pose = Pose(self.robot.position(), self.robot.heading())
+        self.handovers.append((self.sequence[self.stage], pose))
         into = self.stage - self.prefix_stages
         if into >= 0 and into % self.cycle_length == 0:
             self.cycle_starts.append(len(self.trace) - 1)
@@ -165,7 +171,7 @@ class MissionEnv(gym.Env[np.ndarray, np.ndarray]):
     ) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         self.stage = 0
-        self.trace, self.cycle_starts, self.trail = [], [], []
+        self.trace, self.cycle_starts, self.trail, self.handovers = [], [], [], []
         # Real start 0 of the first sub-task is the mission start (envs.handover).
         obs, info = self.envs[self.sequence[0]].reset(seed=seed, options={"start": 0})
         self._record()
@@ -240,10 +246,14 @@ class MissionEvaluation:
     """Failures by sub-task index (as a string) and kind (collision, timeout, rejected)."""
     trails: list[list[list[float]]] = field(default_factory=list, repr=False)
     """Positions of the first few rollouts (for pictures; not in ``to_json``)."""
+    handovers: dict[int, list[Pose]] = field(default_factory=dict, repr=False)
+    """Every pose each sub-task took the robot over in, over all rollouts (not in
+    ``to_json``)."""
 
     def to_json(self) -> dict[str, Any]:
         out = asdict(self)
         out.pop("trails")
+        out.pop("handovers")
         return out
 
 
@@ -261,6 +271,7 @@ def rollout_mission(
     failures: dict[str, dict[str, int]] = {}
     lengths: list[int] = []
     trails: list[list[list[float]]] = []
+    handovers: dict[int, list[Pose]] = {}
     successes = 0
     for episode in range(episodes):
         obs, _ = env.reset(seed=seed if episode == 0 else None)
@@ -269,6 +280,8 @@ def rollout_mission(
         info, steps = run_episode(act, env, obs)
         if episode < keep_trails:
             trails.append([list(p) for p in env.trail])
+        for k, pose in env.handovers:
+            handovers.setdefault(k, []).append(pose)
         if info["is_success"]:
             successes += 1
             lengths.append(steps)
@@ -288,6 +301,7 @@ def rollout_mission(
         mean_steps=float(np.mean(lengths)) if lengths else None,
         failures=failures,
         trails=trails,
+        handovers=handovers,
     )
 
 

@@ -15,7 +15,7 @@ import queue
 import threading
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -23,9 +23,13 @@ from planner.errors import PlanningError
 from planner.plan import MissionPlan, plan_mission, verify_plan
 from planner.serialize import plan_from_dict, plan_to_dict
 from workers.evaluation import MissionEnv, MissionEvaluation, rollout_mission, stage_policies
+from workers.handover_repair import RepairRound, repair_handovers
 from workers.mission import MissionSpec
 from workers.training import ALGORITHMS, TrainingError, TrainResult, train_subtask
 from workers.training_spec import SubtaskJob
+
+EVALUATION_SEED = 7
+"""Offset of the reported mission rollouts' seed from ``training.seed``."""
 
 PipelineProgress = Callable[[int, int, float | None, int], None]
 """``on_progress(subtask, steps, success_rate, total)``, called in the parent process."""
@@ -39,6 +43,8 @@ class PipelineResult:
     plan: MissionPlan
     results: list[TrainResult]
     evaluation: MissionEvaluation
+    repairs: list[RepairRound] = field(default_factory=list)
+    """The rounds of hand-over repair run (``workers.handover_repair``)."""
 
 
 def plan_for(mission: MissionSpec, out_dir: Path) -> MissionPlan:
@@ -62,11 +68,12 @@ def plan_for(mission: MissionSpec, out_dir: Path) -> MissionPlan:
     return plan
 
 
-def _run_job(job: SubtaskJob, out_dir: str, updates: Any) -> TrainResult:
-    """One training job in a worker process; progress goes to the ``updates`` queue."""
+def _run_job(job: SubtaskJob, out_dir: str, updates: Any, offset: int = 0) -> TrainResult:
+    """One training job in a worker process; progress goes to the ``updates`` queue, its steps
+    counted from ``offset`` (a repair continues the sub-task's bar)."""
 
     def report(steps: int, rate: float | None, total: int) -> None:
-        updates.put((job.subtask, steps, rate, total))
+        updates.put((job.subtask, offset + steps, rate, offset + total))
 
     return train_subtask(job, out_dir, on_progress=report)
 
@@ -78,7 +85,8 @@ def run_pipeline(
     on_progress: PipelineProgress | None = None,
 ) -> PipelineResult:
     """Plan ``mission``, train its sub-tasks (``jobs`` processes, default the CPU count), roll
-    out the concatenated policy and write ``out_dir/bundle.zip``. The training section
+    out the concatenated policy, repair hand-overs while the mission is below its target
+    (``workers.handover_repair``) and write ``out_dir/bundle.zip``. The training section
     (budget, seed, ...) is the mission's own: override it on the spec before calling."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -104,15 +112,28 @@ def run_pipeline(
         relay.start()
         try:
             with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
-                futures = [
-                    pool.submit(_run_job, job, str(out / f"subtask_{job.subtask}"), updates)
-                    for job in specs
-                ]
-                results = [f.result() for f in futures]
+
+                def run(batch: list[tuple[SubtaskJob, Path, int]]) -> list[TrainResult]:
+                    futures = [
+                        pool.submit(_run_job, job, str(folder), updates, offset)
+                        for job, folder, offset in batch
+                    ]
+                    return [f.result() for f in futures]
+
+                results = run([(job, out / f"subtask_{job.subtask}", 0) for job in specs])
+                seed = mission.training.seed + EVALUATION_SEED
+
+                def evaluate(candidate: list[TrainResult], at: int) -> MissionEvaluation:
+                    return evaluate_results(mission, plan, candidate, at)
+
+                evaluation = evaluate(results, seed)
+                results, evaluation, repairs = repair_handovers(
+                    mission, plan, results, evaluation, out, evaluate, run, seed
+                )
         finally:
             done.set()
             relay.join()
-    return assemble(mission, plan, results, out / "bundle.zip")
+    return assemble(mission, plan, results, out / "bundle.zip", evaluation, repairs)
 
 
 def subtask_jobs(mission: MissionSpec, plan: MissionPlan) -> list[SubtaskJob]:
@@ -128,16 +149,24 @@ def subtask_jobs(mission: MissionSpec, plan: MissionPlan) -> list[SubtaskJob]:
 
 
 def assemble(
-    mission: MissionSpec, plan: MissionPlan, results: list[TrainResult], bundle: str | Path
+    mission: MissionSpec,
+    plan: MissionPlan,
+    results: list[TrainResult],
+    bundle: str | Path,
+    evaluation: MissionEvaluation | None = None,
+    repairs: list[RepairRound] | None = None,
 ) -> PipelineResult:
-    """After every sub-task is trained: whole-mission rollouts, then the bundle at ``bundle``
-    (what the service's chord callback runs too)."""
+    """After every sub-task is trained: whole-mission rollouts (unless ``evaluation`` holds
+    them), then the bundle at ``bundle`` (what the service's chord callback runs too)."""
     from workers.bundle import write_bundle
 
-    evaluation = evaluate_results(mission, plan, results)
+    if evaluation is None:
+        evaluation = evaluate_results(mission, plan, results)
     seeds = [r.seed for r in results]
     path = write_bundle(bundle, mission, plan, results, evaluation, seeds)
-    return PipelineResult(bundle=path, plan=plan, results=results, evaluation=evaluation)
+    return PipelineResult(
+        bundle=path, plan=plan, results=results, evaluation=evaluation, repairs=repairs or []
+    )
 
 
 def _relay(updates: Any, done: threading.Event, on_progress: PipelineProgress | None) -> None:
@@ -155,9 +184,10 @@ def _relay(updates: Any, done: threading.Event, on_progress: PipelineProgress | 
 
 
 def evaluate_results(
-    mission: MissionSpec, plan: MissionPlan, results: list[TrainResult]
+    mission: MissionSpec, plan: MissionPlan, results: list[TrainResult], seed: int | None = None
 ) -> MissionEvaluation:
-    """Whole-mission rollouts of the trained models (files this pipeline wrote)."""
+    """Whole-mission rollouts of the trained models (files this pipeline wrote), seeded
+    ``seed`` (default ``training.seed + EVALUATION_SEED``)."""
     training = mission.training
     cls = ALGORITHMS[training.algorithm]
     models = [cls.load(r.model_path, device="cpu") for r in results]
@@ -165,6 +195,7 @@ def evaluate_results(
     env = MissionEnv(mission, plan, training.eval_env_options(mission.robot.model), training.cycles)
     try:
         act = stage_policies(env.sequence, policies)
-        return rollout_mission(act, env, training.mission_episodes, seed=training.seed + 7)
+        at = training.seed + EVALUATION_SEED if seed is None else seed
+        return rollout_mission(act, env, training.mission_episodes, seed=at)
     finally:
         env.close()

@@ -72,6 +72,8 @@ class SubtaskEntry(BaseModel):
     policy_steps: int | None = None
     """The kept policy's steps when not the last (``TrainResult.policy_steps``)."""
     stopped: str
+    repairs: int = 0
+    """Hand-over repair rounds (``TrainResult.repairs``)."""
     curve: list[tuple[int, float]]
     evaluation: dict[str, Any] | None
 

@@ -17,6 +17,7 @@ import json
 import pickle
 import time
 import warnings
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -33,6 +34,7 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from envs.factory import make_env
+from envs.handover import Pose
 from envs.nav_env import NavEnv
 from planner.errors import LtlnavError
 from planner.plan import MissionPlan
@@ -50,7 +52,7 @@ from workers.callbacks import (
 )
 from workers.evaluation import SubtaskEvaluation, evaluate_subtask
 from workers.mission import MissionSpec, parse_mission
-from workers.training_spec import SubtaskJob, TrainingSpec
+from workers.training_spec import StartPose, SubtaskJob, TrainingSpec
 
 ALGORITHMS: dict[str, type[BaseAlgorithm]] = {"sac": SAC, "td3": TD3, "ddpg": DDPG, "ppo": PPO}
 """stable-baselines3 classes by ``training.algorithm`` name."""
@@ -95,6 +97,9 @@ class TrainResult:
     """``SubtaskEvaluation.to_json()`` over ``final_eval_episodes`` (None when cancelled)."""
     seconds: float = 0.0
     """Wall time of this call."""
+    repairs: int = 0
+    """Hand-over repair rounds the policy went through (``workers.handover_repair``); then
+    ``final`` is measured from the poses the mission's rollouts handed the sub-task over in."""
 
     def to_json(self) -> dict[str, Any]:
         out = asdict(self)
@@ -114,15 +119,20 @@ def subtask_env(
     training: TrainingSpec,
     subtask: int,
     evaluation: bool = False,
+    starts: Sequence[StartPose] | None = None,
 ) -> NavEnv:
     """The env of ``subtask`` as trained (or, with ``evaluation``, as evaluated: see
-    ``TrainingSpec.eval_env_options``);
+    ``TrainingSpec.eval_env_options``), from ``starts`` in place of the real starts when given;
     ``g-rrt`` drives the whole lasso whatever ``subtask``."""
     mode = training.reward.mode
     model = mission.robot.model
     options = training.eval_env_options(model) if evaluation else training.env_options(model)
     target = None if mode == "g-rrt" else plan.subtasks[subtask]
-    return make_env(mission, target, mode, world=mission.build_world(), plan=plan, options=options)
+    poses = None
+    if starts is not None:
+        poses = [Pose(np.asarray(p.position, dtype=float), p.heading) for p in starts]
+    world = mission.build_world()
+    return make_env(mission, target, mode, world=world, plan=plan, options=options, starts=poses)
 
 
 def hyperparameters(training: TrainingSpec, action_dim: int) -> dict[str, Any]:
@@ -183,15 +193,15 @@ def train_subtask(
     mission, plan = _load_job(spec)
     out.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(training.torch_threads)
-    env = DummyVecEnv([lambda: Monitor(subtask_env(mission, plan, training, spec.subtask))])
-    eval_env = DummyVecEnv(
-        [lambda: Monitor(subtask_env(mission, plan, training, spec.subtask, evaluation=True))]
-    )
+    k, starts = spec.subtask, spec.starts
+    env = DummyVecEnv([lambda: Monitor(subtask_env(mission, plan, training, k, False, starts))])
+    eval_env = DummyVecEnv([lambda: Monitor(subtask_env(mission, plan, training, k, True, starts))])
     env.seed(spec.seed)
     eval_env.seed(spec.seed + 1)
-    test_env = subtask_env(mission, plan, training, spec.subtask, evaluation=True)
+    test_env = subtask_env(mission, plan, training, k, True, starts)
     folder = out / "checkpoints"
-    model, resumed = _model(training, env, folder, spec.seed)
+    warm = Path(spec.warm_start) if spec.warm_start is not None else None
+    model, resumed = _model(training, env, folder, spec.seed, warm)
 
     def final_evaluation() -> SubtaskEvaluation:
         return evaluate_subtask(
@@ -280,11 +290,15 @@ def _meets(result: TrainResult, target: float) -> bool:
 
 
 def _model(
-    training: TrainingSpec, env: DummyVecEnv, folder: Path, seed: int
+    training: TrainingSpec, env: DummyVecEnv, folder: Path, seed: int, warm: Path | None = None
 ) -> tuple[BaseAlgorithm, int]:
-    """A fresh model, or the newest checkpoint in ``folder`` with its replay buffer."""
+    """The newest checkpoint in ``folder`` with its replay buffer; else, with ``warm`` (a
+    finished job's folder), its policy and newest replay buffer at step 0; else a fresh model."""
     cls = ALGORITHMS[training.algorithm]
-    for path, buffer, steps in checkpoints(folder):
+    found = checkpoints(folder)
+    if not found and warm is not None:
+        return _warm_model(cls, env, warm, seed), 0
+    for path, buffer, steps in found:
         try:
             model = cls.load(path, env=env, device="cpu")
             if buffer is not None and isinstance(model, OffPolicyAlgorithm):
@@ -299,6 +313,19 @@ def _model(
     assert shape is not None
     params = hyperparameters(training, int(np.prod(shape)))
     return cls("MlpPolicy", env, seed=seed, device="cpu", verbose=0, **params), 0
+
+
+def _warm_model(cls: type[BaseAlgorithm], env: DummyVecEnv, warm: Path, seed: int) -> BaseAlgorithm:
+    policy = warm / "model.zip"
+    if not policy.is_file():
+        raise TrainingError(f"warm start {warm} holds no model.zip: train that job first")
+    model = cls.load(policy, env=env, device="cpu")
+    model.set_random_seed(seed)
+    buffers = [b for _, b, _ in checkpoints(warm / "checkpoints") if b is not None]
+    if buffers and isinstance(model, OffPolicyAlgorithm):
+        model.load_replay_buffer(buffers[0])
+    model.num_timesteps = 0
+    return model
 
 
 def keep_best_policy(

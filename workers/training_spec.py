@@ -192,6 +192,20 @@ class TrainingSpec(BaseModel):
         100, ge=1, description="Whole-mission rollouts of the concatenated policy."
     )
     cycles: int = Field(3, ge=1, description="Suffix cycles of a whole-mission rollout.")
+    mission_target: float = Field(
+        0.9,
+        gt=0,
+        le=1,
+        description="Whole-mission success rate the pipeline aims at: below it, every sub-task "
+        "the rollouts failed in trains on from the poses the rollouts handed it the robot in "
+        "(workers.handover_repair), for handover_rounds rounds.",
+    )
+    handover_rounds: int = Field(
+        2, ge=0, description="Rounds of hand-over repair at most (0: none; see mission_target)."
+    )
+    handover_steps: int = Field(
+        30_000, ge=1, description="Budget of env steps of one sub-task's hand-over repair."
+    )
     eval_start_noise: float = Field(
         0.2,
         ge=0,
@@ -320,6 +334,15 @@ def _valid_arch(arch: Any) -> bool:
     return layers(arch)
 
 
+class StartPose(BaseModel):
+    """A start pose of a ``SubtaskJob`` as plain JSON."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    position: list[float] = Field(min_length=2, max_length=3, description="Workspace point.")
+    heading: float = Field(0.0, description="Yaw (radians).")
+
+
 class SubtaskJob(BaseModel):
     """One training job: train sub-task ``subtask`` of ``plan`` for ``mission``.
 
@@ -334,3 +357,14 @@ class SubtaskJob(BaseModel):
     subtask: int = Field(ge=0, description="Index into the plan's sub-tasks.")
     training: TrainingSpec = Field(description="The training section to use.")
     seed: int = Field(ge=0, description="Seed of this job (agent and env resets).")
+    starts: list[StartPose] | None = Field(
+        None,
+        description="Start poses of training and evaluation episodes in place of the real "
+        "starts (None: envs.handover's).",
+    )
+    warm_start: str | None = Field(
+        None,
+        description="Output folder of a finished job of this sub-task: begin from its policy "
+        "(model.zip) and newest replay buffer instead of a fresh agent (when this job's own "
+        "folder holds no checkpoint yet).",
+    )

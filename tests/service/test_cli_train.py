@@ -25,7 +25,9 @@ def test_train_then_rollout(tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     assert "mission success rate" in result.output and "bundle written" in result.output
     for k in range(4):
-        assert f"sub-task {k}: 100 steps (budget)" in result.output
+        assert f"sub-task {k}: " in result.output
+    # 100 steps cannot train the mission: hand-over repair runs (handover_steps 200 in TINY)
+    assert "hand-over repair 1 (sub-tasks" in result.output
     bundle = out / "bundle.zip"
     with zipfile.ZipFile(bundle) as archive:
         manifest = json.loads(archive.read("manifest.json"))

@@ -26,6 +26,7 @@ TINY: dict[str, Any] = {
         "eval_episodes": 1,
         "final_eval_episodes": 2,
         "mission_episodes": 2,
+        "handover_steps": 200,
         "hyperparams": {
             "policy_kwargs": {"net_arch": [8]},
             "learning_starts": 50,

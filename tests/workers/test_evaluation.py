@@ -71,6 +71,11 @@ def test_mission_rollout_of_a_good_policy_is_accepted(
     assert result.trails[0][0] != result.trails[1][0]  # evaluation start noise: two trials
     assert {"a", "b"} <= set().union(*env.trace)
     assert len(env.cycle_starts) == 2 and env.accepted()
+    for k, poses in result.handovers.items():  # every stage begun, in both rollouts
+        assert len(poses) == 2 * env.sequence.count(k)
+    for (k, pose), prev in zip(env.handovers[1:], env.sequence, strict=False):
+        goal = env.world.regions[plan.subtasks[prev].goal]  # handed over on entering it
+        assert goal.contains(pose.position[None, :])[0], (k, pose)
     # the same positions without ever visiting b: the automaton rejects the trace
     env.trace = [lab for lab in env.trace if "b" not in lab]
     assert not env.accepted()
