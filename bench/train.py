@@ -156,9 +156,10 @@ def train_job(job: SubtaskJob, out_dir: str) -> dict[str, Any]:
     return train_subtask(job, out_dir).to_json()
 
 
-def assemble_row(row: Row, out: Path) -> None:
-    """Whole-mission rollouts of a finished row, written with its ``bundle.zip``."""
-    from workers.pipeline import assemble
+def assemble_row(row: Row, out: Path, pool: ProcessPoolExecutor) -> None:
+    """Whole-mission rollouts of a finished row, hand-over repair (its jobs on ``pool``) and
+    its ``bundle.zip``, as ``ltlnav train`` does."""
+    from workers.pipeline import finish
     from workers.training import TrainResult
 
     folder = out / row.folder
@@ -169,7 +170,18 @@ def assemble_row(row: Row, out: Path) -> None:
         )
         for j in jobs
     ]
-    done = assemble(mission, plan, results, folder / "bundle.zip")
+
+    def run(batch: list[tuple[SubtaskJob, Path, int]]) -> list[TrainResult]:
+        futures = [pool.submit(train_job, job, str(target)) for job, target, _ in batch]
+        return [TrainResult.from_json(f.result()) for f in futures]
+
+    done = finish(mission, plan, results, folder, run)
+    for r in done.repairs:
+        print(
+            f"{row.folder} hand-over repair {r.round} of sub-tasks {r.subtasks}: mission "
+            f"{r.success_before:.1%} -> {r.success_after:.1%} ({'kept' if r.kept else 'not kept'})",
+            flush=True,
+        )
     print(f"{row.folder}: mission success {done.evaluation.success_rate:.1%}", flush=True)
 
 
@@ -216,7 +228,7 @@ def run_rows(rows: list[Row], out: Path, jobs: int) -> None:
             )
             left[row] -= 1
             if left[row] == 0 and row.subtasks is None and row.method != "g-rrt":
-                assemble_row(row, out)  # here, not queued behind every other row's training
+                assemble_row(row, out, pool)  # here, not queued behind every other row's training
 
 
 # ------------------------------------------------------------------------------------ report
@@ -231,12 +243,24 @@ def row_figures(row: Row, out: Path) -> dict[str, Any] | None:
         results.append(json.loads(path.read_text()))
     if not results:
         return None
+    first_seconds = [r["seconds"] for r in results]
+    repaired = folder / "handover_repair.json"
+    rounds: list[dict[str, Any]] = []
+    if repaired.is_file() and row.subtasks is None:  # the results kept after hand-over repair
+        record = json.loads(repaired.read_text())
+        results, rounds = record["results"], record["rounds"]
     bundle, mission = folder / "bundle.zip", None
     if bundle.is_file():  # written by assemble_row or by ``ltlnav train --out`` on the folder
         with zipfile.ZipFile(bundle) as archive:
             mission = json.loads(archive.read("manifest.json"))["mission_evaluation"]
     plan = json.loads((folder / "plan.json").read_text())["plan"]
-    return {"results": results, "mission": mission, "n_subtasks": len(plan["subtasks"])}
+    return {
+        "results": results,
+        "mission": mission,
+        "n_subtasks": len(plan["subtasks"]),
+        "first_seconds": first_seconds,
+        "repairs": rounds,
+    }
 
 
 def _pct(x: float | None) -> str:
@@ -275,9 +299,14 @@ def table(rows: list[Row], out: Path, workers: int) -> str:
         success = ", ".join(_pct(f.get("success_rate")) for f in finals)
         collisions = ", ".join(_pct(f.get("collision_rate")) for f in finals)
         steps = ", ".join(
-            f"{r['steps'] // 1000}k{'' if r['stopped'] == 'target' else '*'}" for r in res
+            f"{r['steps'] // 1000}k{'' if r['stopped'] == 'target' else '*'}"
+            + ("+h" if r.get("repairs") else "")
+            for r in res
         )
+        repairs = fig["repairs"]
+        extra = sum(r["seconds"] for r in repairs)
         seconds = [r["seconds"] for r in res]
+        wall = makespan(fig["first_seconds"], workers) + extra
         which = (
             "whole lasso"
             if row.method == "g-rrt"
@@ -287,15 +316,19 @@ def table(rows: list[Row], out: Path, workers: int) -> str:
             which = f"{len(res)} trained"
         ev = fig["mission"]
         ms = "-" if ev is None else f"{_pct(ev['success_rate'])} ({ev['episodes']})"
+        if repairs:
+            ms += f", {_pct(repairs[0]['success_before'])} before repair"
         lines.append(
             f"| {row.mission} | {mission.robot.model} | {row.variant} | {row.seed} | "
             f"{which} of {fig['n_subtasks']} | {success} | {steps} | {collisions} | {ms} | "
-            f"{sum(seconds):.0f} | {makespan(seconds, workers):.0f} |"
+            f"{sum(seconds):.0f} | {wall:.0f} |"
         )
     lines.append("")
     lines.append(
         "`*`: the budget ran out before a periodic evaluation reached the target "
-        "(no early stop). Wall: the pool's schedule of the measured job times."
+        "(no early stop). `+h`: trained on by hand-over repair (its success is then from the "
+        "poses the mission's rollouts handed it over in). Wall: the pool's schedule of the "
+        "measured job times, plus the hand-over repair rounds."
     )
     return "\n".join(lines)
 

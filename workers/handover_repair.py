@@ -21,6 +21,7 @@ At most ``training.handover_rounds`` rounds.
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -63,6 +64,8 @@ class RepairRound:
     success_after: float
     kept: bool
     """Whether the repaired policies replaced the earlier ones (the mission improved)."""
+    seconds: float
+    """Wall time of the round: probe rollouts, training, evaluation."""
 
     def to_json(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -149,6 +152,7 @@ def repair_handovers(
     for round_ in range(1, training.handover_rounds + 1):
         if evaluation.success_rate >= training.mission_target:
             break
+        t0 = time.monotonic()
         probe = evaluate(results, training.seed + PROBE_SEED * round_)
         jobs = repair_jobs(mission, plan, results, probe, round_, out_dir)
         if not jobs:
@@ -166,6 +170,7 @@ def repair_handovers(
                 success_before=evaluation.success_rate,
                 success_after=after.success_rate,
                 kept=kept,
+                seconds=time.monotonic() - t0,
             )
         )
         if not kept:

@@ -23,13 +23,17 @@ from planner.errors import PlanningError
 from planner.plan import MissionPlan, plan_mission, verify_plan
 from planner.serialize import plan_from_dict, plan_to_dict
 from workers.evaluation import MissionEnv, MissionEvaluation, rollout_mission, stage_policies
-from workers.handover_repair import RepairRound, repair_handovers
+from workers.handover_repair import RepairRound, RunJobs, repair_handovers
 from workers.mission import MissionSpec
 from workers.training import ALGORITHMS, TrainingError, TrainResult, train_subtask
 from workers.training_spec import SubtaskJob
 
 EVALUATION_SEED = 7
 """Offset of the reported mission rollouts' seed from ``training.seed``."""
+
+REPAIR_RECORD = "handover_repair.json"
+"""What ``finish`` did: the repair rounds, the sub-task results kept and the mission's
+evaluation (the bundle holds them too)."""
 
 PipelineProgress = Callable[[int, int, float | None, int], None]
 """``on_progress(subtask, steps, success_rate, total)``, called in the parent process."""
@@ -121,18 +125,33 @@ def run_pipeline(
                     return [f.result() for f in futures]
 
                 results = run([(job, out / f"subtask_{job.subtask}", 0) for job in specs])
-                seed = mission.training.seed + EVALUATION_SEED
-
-                def evaluate(candidate: list[TrainResult], at: int) -> MissionEvaluation:
-                    return evaluate_results(mission, plan, candidate, at)
-
-                evaluation = evaluate(results, seed)
-                results, evaluation, repairs = repair_handovers(
-                    mission, plan, results, evaluation, out, evaluate, run, seed
-                )
+                return finish(mission, plan, results, out, run)
         finally:
             done.set()
             relay.join()
+
+
+def finish(
+    mission: MissionSpec, plan: MissionPlan, results: list[TrainResult], out: Path, run: RunJobs
+) -> PipelineResult:
+    """After every sub-task is trained: whole-mission rollouts, hand-over repair while below
+    ``training.mission_target`` (its jobs go to ``run``; what it did goes to
+    ``out/handover_repair.json``), then ``out/bundle.zip``."""
+    seed = mission.training.seed + EVALUATION_SEED
+
+    def evaluate(candidate: list[TrainResult], at: int) -> MissionEvaluation:
+        return evaluate_results(mission, plan, candidate, at)
+
+    evaluation = evaluate(results, seed)
+    results, evaluation, repairs = repair_handovers(
+        mission, plan, results, evaluation, out, evaluate, run, seed
+    )
+    record = {
+        "rounds": [r.to_json() for r in repairs],
+        "results": [r.to_json() for r in results],
+        "mission_evaluation": evaluation.to_json(),
+    }
+    (out / REPAIR_RECORD).write_text(json.dumps(record, indent=1))
     return assemble(mission, plan, results, out / "bundle.zip", evaluation, repairs)
 
 
