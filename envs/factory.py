@@ -101,6 +101,11 @@ class EnvOptions:
     """Robots driven by (forward, turn) actions (unicycle, racecar) only: map the policy's
     forward component from ``[-1, 1]`` onto ``[min_forward, 1]`` (e.g. 0.2: always creep
     forward, no parking or reversing). None: the action goes to the robot unchanged."""
+    guide_feedforward: float | None = None
+    """Robots commanded by a world-frame velocity or acceleration (point, quadrotor) only: add
+    this share of the full command toward the guide's carrot (``envs.feedforward``) to the
+    policy's action, clipped to ``[-1, 1]``: the policy learns a correction to following the
+    guide. None: the action goes to the robot unchanged."""
     r_ball: float | None = None
     """Radius of the guide's r-balls. None: the plan's ``r_ball``, or the planner default
     (a fortieth of the world's diagonal, ``eta / 2``) without a plan."""
@@ -146,6 +151,12 @@ class EnvOptions:
             self.min_forward is None or (number("min_forward") and -1 <= self.min_forward < 1),
             "min_forward",
             "must be in [-1, 1)",
+        )
+        need(
+            self.guide_feedforward is None
+            or (number("guide_feedforward") and 0 < self.guide_feedforward <= 1),
+            "guide_feedforward",
+            "must be in (0, 1]",
         )
         need(isinstance(self.rewards, RewardConfig), "rewards", "must be a RewardConfig")
 

@@ -37,6 +37,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from envs.feedforward import FEEDFORWARD_ROBOTS, carrot_direction, with_feedforward
 from envs.handover import Pose
 from envs.observation import HEADING_FEATURES, ObservationBuilder
 from envs.potential import GuidePotential
@@ -153,6 +154,13 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
             raise EnvConfigError(
                 "options.min_forward",
                 f"only for robots driven by (forward, turn) actions, not a {robot.name}",
+            )
+        self._feedforward: float | None = options.guide_feedforward
+        if self._feedforward is not None and robot.name not in FEEDFORWARD_ROBOTS:
+            raise EnvConfigError(
+                "options.guide_feedforward",
+                f"only for robots commanded in the world frame "
+                f"({', '.join(sorted(FEEDFORWARD_ROBOTS))}), not a {robot.name}",
             )
         self._leg = first
         self._leg_k = 0
@@ -273,7 +281,7 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         robot = self.robot
-        if self._forward is not None:
+        if self._forward is not None or self._feedforward is not None:
             action = self._remap(action)
         robot.step(action)
         self._t += 1
@@ -335,14 +343,19 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         return self._guide_potential.value(self._leg_k, self._index - self._leg.offset, x)
 
     def _remap(self, action: np.ndarray) -> np.ndarray:
-        """The ``min_forward`` mapping of a validated action (a bad action must not be mapped
-        into the box and slip through)."""
+        """The ``min_forward`` mapping or the ``guide_feedforward`` of a validated action (a
+        bad action must not be mapped into the box and slip through)."""
         a = np.array(action, dtype=float)
         if a.shape != (self.robot.action_dim,) or not np.all(np.abs(a) <= 1.0):
             raise ValueError(
                 f"action must have shape ({self.robot.action_dim},) with components in [-1, 1] "
                 f"(actions are not clipped), got {np.asarray(action).tolist()}"
             )
+        if self._feedforward is not None:
+            centres = self._leg.guide.centers
+            x = self.robot.position().tolist()
+            local = self._index - self._leg.offset
+            return with_feedforward(a, self._feedforward, carrot_direction(centres, local, x))
         low = float(self._forward or 0.0)
         a[0] = low + (1.0 - low) * 0.5 * (a[0] + 1.0)
         return a

@@ -502,6 +502,33 @@ def test_min_forward_maps_the_forward_command(envs: list[NavEnv]) -> None:
         build_env("point", 2, min_forward=0.2)
 
 
+def test_guide_feedforward_drives_toward_the_carrot_and_the_policy_corrects_it(
+    envs: list[NavEnv],
+) -> None:
+    from envs.feedforward import AHEAD, carrot_direction
+
+    env = build_env("point", 2, guide_feedforward=0.5)
+    envs.append(env)
+    env.reset(seed=0, options={"position": START_2D})
+    centres = env.legs[0].guide.centers
+    direction = carrot_direction(centres, -1, START_2D)
+    assert np.linalg.norm(direction) == pytest.approx(1.0)
+    assert np.allclose(
+        direction * np.linalg.norm(centres[AHEAD - 1] - START_2D), centres[AHEAD - 1] - START_2D
+    )
+    env.step(np.zeros(2))  # a zero action accelerates along the feed-forward
+    velocity = env.robot.state[2:]
+    assert np.allclose(velocity / np.linalg.norm(velocity), direction, atol=1e-6)
+    env.reset(seed=0, options={"position": START_2D})
+    env.step(-0.5 * direction)  # the policy can cancel it
+    assert np.allclose(env.robot.state[2:], 0.0)
+    assert np.array_equal(carrot_direction(centres, len(centres), centres[-1]), np.zeros(2))
+    with pytest.raises(EnvConfigError, match="guide_feedforward.*not a unicycle"):
+        build_env("unicycle", 2, guide_feedforward=0.5)
+    with pytest.raises(EnvConfigError, match=r"guide_feedforward: must be in \(0, 1\]"):
+        build_env("point", 2, guide_feedforward=0.0)
+
+
 def test_options_dataclass_documents_every_field() -> None:
     import ast
     import inspect
