@@ -31,7 +31,8 @@ from service.jobs.progress import JobMonitor, mission_heartbeat
 from service.models import JobStatus, MissionStatus
 from service.settings import Settings
 from workers.mission import MissionSpec, parse_mission
-from workers.pipeline import assemble, plan_for, subtask_jobs
+from workers.pipeline import finish, plan_for, subtask_jobs
+from workers.training_spec import SubtaskJob
 
 log = logging.getLogger(__name__)
 
@@ -333,9 +334,10 @@ def _all_done(session: Session, mission_id: str) -> bool:
 
 
 def assemble_step(settings: Settings, mission_id: str) -> str:
-    """Once every job is done: whole-mission rollouts, ``bundle.zip``, status done. Returns
-    what happened (``done``, ``waiting``, ``busy``, ...)."""
-    from workers.training import TrainResult
+    """Once every job is done: whole-mission rollouts, hand-over repair while the mission is
+    below its target (``workers.handover_repair``; its jobs train here, one after the other),
+    ``bundle.zip``, status done. Returns what happened (``done``, ``waiting``, ``busy``, ...)."""
+    from workers.training import TrainResult, train_subtask
 
     db = database_for(settings)
     with db.session() as session:
@@ -366,7 +368,11 @@ def assemble_step(settings: Settings, mission_id: str) -> str:
         spec = _spec(document)
         folder = mission_dir(settings, mission_id)
         plan = plan_for(spec, folder)
-        out = assemble(spec, plan, results, folder / "bundle.zip")
+
+        def run(batch: list[tuple[SubtaskJob, Path, int]]) -> list[TrainResult]:
+            return [train_subtask(job, target) for job, target, _ in batch]
+
+        out = finish(spec, plan, results, folder, run)
         evaluation = out.evaluation
         with db.session() as session:
             repository.set_result(session, mission_id, evaluation.to_json(), str(out.bundle))
@@ -374,7 +380,7 @@ def assemble_step(settings: Settings, mission_id: str) -> str:
                 session,
                 mission_id,
                 None,
-                steps=sum(r.steps for r in results),
+                steps=sum(r.steps for r in out.results),
                 episodes=evaluation.episodes,
                 success_rate=evaluation.success_rate,
             )
