@@ -102,8 +102,8 @@ class EnvOptions:
     forward component from ``[-1, 1]`` onto ``[min_forward, 1]`` (e.g. 0.2: always creep
     forward, no parking or reversing). None: the action goes to the robot unchanged."""
     guide_feedforward: float | None = None
-    """Robots commanded by a world-frame velocity or acceleration (point, quadrotor) only: add
-    this share of the full command toward the guide's carrot (``envs.feedforward``) to the
+    """Add this share of the full command toward the guide's carrot (``envs.feedforward``;
+    world-frame robots: to the whole action, (forward, turn) robots: to the turn) to the
     policy's action, clipped to ``[-1, 1]``: the policy learns a correction to following the
     guide. None: the action goes to the robot unchanged."""
     r_ball: float | None = None

@@ -37,7 +37,13 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from envs.feedforward import FEEDFORWARD_ROBOTS, carrot_direction, with_feedforward
+from envs.feedforward import (
+    STEERED_ROBOTS,
+    WORLD_FRAME_ROBOTS,
+    carrot_direction,
+    steering_toward,
+    with_feedforward,
+)
 from envs.handover import Pose
 from envs.observation import HEADING_FEATURES, ObservationBuilder
 from envs.potential import GuidePotential
@@ -156,11 +162,11 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
                 f"only for robots driven by (forward, turn) actions, not a {robot.name}",
             )
         self._feedforward: float | None = options.guide_feedforward
-        if self._feedforward is not None and robot.name not in FEEDFORWARD_ROBOTS:
+        supported = WORLD_FRAME_ROBOTS | STEERED_ROBOTS
+        if self._feedforward is not None and robot.name not in supported:
             raise EnvConfigError(
                 "options.guide_feedforward",
-                f"only for robots commanded in the world frame "
-                f"({', '.join(sorted(FEEDFORWARD_ROBOTS))}), not a {robot.name}",
+                f"only for {', '.join(sorted(supported))} robots, not a {robot.name}",
             )
         self._leg = first
         self._leg_k = 0
@@ -351,13 +357,17 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
                 f"action must have shape ({self.robot.action_dim},) with components in [-1, 1] "
                 f"(actions are not clipped), got {np.asarray(action).tolist()}"
             )
-        if self._feedforward is not None:
-            centres = self._leg.guide.centers
-            x = self.robot.position().tolist()
+        gain = self._feedforward
+        if gain is not None:
             local = self._index - self._leg.offset
-            return with_feedforward(a, self._feedforward, carrot_direction(centres, local, x))
-        low = float(self._forward or 0.0)
-        a[0] = low + (1.0 - low) * 0.5 * (a[0] + 1.0)
+            toward = carrot_direction(self._leg.guide.centers, local, self.robot.position())
+            if self.robot.name in WORLD_FRAME_ROBOTS:
+                return with_feedforward(a, gain, toward)
+            turn = steering_toward(self.robot.heading(), toward)
+            a[1] = min(1.0, max(-1.0, a[1] + gain * turn))
+        if self._forward is not None:
+            low = self._forward
+            a[0] = low + (1.0 - low) * 0.5 * (a[0] + 1.0)
         return a
 
     def _automaton_outcome(self, x: list[float], d: float) -> int:

@@ -523,10 +523,28 @@ def test_guide_feedforward_drives_toward_the_carrot_and_the_policy_corrects_it(
     env.step(-0.5 * direction)  # the policy can cancel it
     assert np.allclose(env.robot.state[2:], 0.0)
     assert np.array_equal(carrot_direction(centres, len(centres), centres[-1]), np.zeros(2))
-    with pytest.raises(EnvConfigError, match="guide_feedforward.*not a unicycle"):
-        build_env("unicycle", 2, guide_feedforward=0.5)
     with pytest.raises(EnvConfigError, match=r"guide_feedforward: must be in \(0, 1\]"):
         build_env("point", 2, guide_feedforward=0.0)
+
+
+def test_guide_feedforward_steers_a_heading_robot_toward_the_carrot(envs: list[NavEnv]) -> None:
+    from envs.feedforward import carrot_direction, steering_toward
+
+    env = build_env("unicycle", 2, guide_feedforward=1.0, min_forward=0.2)
+    envs.append(env)
+    centres = env.legs[0].guide.centers
+    toward = carrot_direction(centres, -1, START_2D)
+    away = math.atan2(-toward[1], -toward[0])  # facing straight away: a full turn
+    env.reset(seed=0, options={"position": START_2D, "heading": away + 0.1})
+    assert abs(steering_toward(away + 0.1, toward)) == 1.0
+    before = env.robot.heading()
+    env.step(np.zeros(2))
+    turned = math.remainder(env.robot.heading() - before, math.tau)
+    # the error is pi - 0.1 (to the left): a full left turn, at any forward command
+    assert turned == pytest.approx(env.robot.params.max_turn_rate * env.robot.dt)
+    heading = math.atan2(toward[1], toward[0])
+    assert steering_toward(heading + 0.2, toward) == pytest.approx(-0.2 / (math.pi / 2))
+    assert steering_toward(heading, np.zeros(2)) == 0.0
 
 
 def test_options_dataclass_documents_every_field() -> None:
