@@ -16,6 +16,7 @@ import json
 import tempfile
 import zipfile
 from collections.abc import Sequence
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +27,7 @@ import matplotlib.pyplot as plt
 from matplotlib.patches import Circle, Rectangle
 from matplotlib.patches import Polygon as PolygonPatch
 
+from envs.factory import EnvOptions
 from planner.guidance import Guide
 from planner.plan import MissionPlan
 from planner.plot import plot_plan
@@ -117,8 +119,14 @@ def manifest_for(
         subtasks=entries,
         cycles=training.cycles,
         mission_evaluation=evaluation.to_json() if evaluation is not None else None,
+        eval_env=eval_env_document(training.eval_env_options(mission.robot.model)),
         files=list(files),
     )
+
+
+def eval_env_document(options: EnvOptions) -> dict[str, Any]:
+    """``options`` as the manifest's ``eval_env`` (every field but ``rewards``)."""
+    return {f.name: getattr(options, f.name) for f in fields(options) if f.name != "rewards"}
 
 
 def write_bundle(

@@ -31,6 +31,8 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 from stable_baselines3 import DDPG, PPO, SAC, TD3
 from stable_baselines3.common.policies import BasePolicy
 
+from envs.factory import EnvOptions
+from envs.rewards import EnvConfigError
 from planner.errors import LtlnavError
 from planner.plan import MissionPlan
 from planner.serialize import plan_from_dict
@@ -96,6 +98,10 @@ class Manifest(BaseModel):
     subtasks: list[SubtaskEntry]
     cycles: int
     mission_evaluation: dict[str, Any] | None
+    eval_env: dict[str, Any] | None = None
+    """The env options the policies were evaluated with and act under (``EnvOptions`` fields
+    but ``rewards``; they fix what an action means: ``min_forward``, ``guide_feedforward``).
+    None (bundles written before it was recorded): the mission's, under today's defaults."""
     files: list[str]
 
 
@@ -252,11 +258,20 @@ class ConcatenatedPolicy:
             raise BundleError(f"{path}: the bundled plan is malformed ({err!r})") from err
         if len(plan.subtasks) != len(manifest.subtasks):
             raise BundleError(f"{path}: the plan and the manifest list different sub-tasks")
+        if manifest.eval_env is not None:
+            try:
+                EnvOptions(**manifest.eval_env)
+            except (EnvConfigError, TypeError) as err:
+                raise BundleError(f"{path}: invalid eval_env in the manifest: {err}") from err
         return cls(manifest, mission, plan, models)
 
     def make_env(self, cycles: int | None = None) -> MissionEnv:
         """The mission env this policy acts in (``cycles`` suffix cycles, default the bundle's)."""
-        options = self.mission.training.eval_env_options(self.mission.robot.model)
+        recorded = self.manifest.eval_env
+        if recorded is not None:
+            options = EnvOptions(**recorded)
+        else:
+            options = self.mission.training.eval_env_options(self.mission.robot.model)
         return MissionEnv(self.mission, self.plan, options, cycles or self.cycles)
 
     def subtask_of(self, stage: int) -> int:

@@ -108,14 +108,15 @@ lidar-like rays in the observation (training and evaluation alike), so that keep
 is a function of what the robot senses, not of a memorised map."""
 
 STALL_ENV_DEFAULTS: dict[str, Any] = {"stall_steps": 30}
-"""Training defaults of the guide rewards (``STALL_MODES``): an episode that reaches no new
+"""Training defaults of the guide rewards (``GUIDED_MODES``): an episode that reaches no new
 r-ball for 30 steps ends as a failure with the mode's crash reward (``stall_penalty``), so
 leaving the guide costs what a crash costs and the off-guide wandering never fills the replay
 buffer. Evaluations never stop a stalled episode."""
 
-STALL_MODES = frozenset({"rrt", "g-rrt"})
-"""Reward modes that take ``STALL_ENV_DEFAULTS``: ours. ``rrt-paper`` is the paper's reward
-as published; ``ned`` and ``tl`` must not learn from the guide."""
+GUIDED_MODES = frozenset({"rrt", "g-rrt"})
+"""Reward modes that take ``STALL_ENV_DEFAULTS`` and ``FEEDFORWARD_ENV_DEFAULTS`` (both read
+the guide): ours. ``rrt-paper`` is the paper's method as published; ``ned`` and ``tl`` must not
+learn from the guide."""
 
 HEADING_ENV_DEFAULTS: dict[str, Any] = {"min_forward": 0.2}
 """Defaults for robots driven by (forward, turn) actions, in training and evaluation alike (it
@@ -127,7 +128,8 @@ FEEDFORWARD_ENV_DEFAULTS: dict[str, dict[str, Any]] = {
     "quadrotor": {"guide_feedforward": 1.0},
     "unicycle": {"guide_feedforward": 1.0},
 }
-"""Defaults per robot, in training and evaluation alike (it changes what an action means): the
+"""Defaults per robot for ``GUIDED_MODES``, in training and evaluation alike (it changes what an
+action means): the
 full command toward the guide's carrot (a velocity for the quadrotor, a turn for the unicycle)
 is added to the policy's action (``envs.feedforward``), which then learns the correction.
 Measured (``bench/LEARNING.md``): quadrotor phi_1,inf sub-task 0 from 0 % at 40k steps to 100 %
@@ -306,8 +308,8 @@ class TrainingSpec(BaseModel):
         defaults = dict(TRAINING_ENV_DEFAULTS)
         if model in HEADING_FEATURES:
             defaults.update(HEADING_ENV_DEFAULTS)
-        defaults.update(FEEDFORWARD_ENV_DEFAULTS.get(model, {}))
-        if self.reward.mode in STALL_MODES:
+        if self.reward.mode in GUIDED_MODES:
+            defaults.update(FEEDFORWARD_ENV_DEFAULTS.get(model, {}))
             crash = reward_mode(self.reward.mode, self.reward.config()).crash
             defaults.update(STALL_ENV_DEFAULTS, stall_penalty=crash)
         return {**defaults, **self.env}

@@ -311,3 +311,36 @@ def test_loading_a_bundle_unpickles_nothing(
     policy = ConcatenatedPolicy.load(bundle)
     assert len(policy.policies) == 4
     policy.close()
+
+
+def test_policies_act_under_the_recorded_env_options(
+    trained: tuple[MissionSpec, MissionPlan, list[TrainResult], Path], tmp_path: Path
+) -> None:
+    mission, _, _, bundle = trained
+    with zipfile.ZipFile(bundle) as archive:
+        manifest = json.loads(archive.read("manifest.json"))
+    expected = mission.training.eval_env_options(mission.robot.model)
+    assert manifest["eval_env"]["rays"] == expected.rays
+    assert manifest["eval_env"]["start_noise"] == expected.start_noise
+    # the defaults of a later ltlnav may differ: the recorded options win
+    recorded = {**manifest["eval_env"], "max_steps": 7}
+    changed = rewrite(
+        bundle, tmp_path / "h.zip", {"manifest.json": manifest_with(bundle, eval_env=recorded)}
+    )
+    policy = ConcatenatedPolicy.load(changed)
+    try:
+        env = policy.make_env()
+        assert {e.max_steps for e in env.envs} == {7}
+        env.close()
+    finally:
+        policy.close()
+    bad = rewrite(
+        bundle,
+        tmp_path / "i.zip",
+        {"manifest.json": manifest_with(bundle, eval_env={**recorded, "rays": -1})},
+    )
+    with pytest.raises(BundleError, match="invalid eval_env"):
+        ConcatenatedPolicy.load(bad)
+    older = {k: v for k, v in manifest.items() if k != "eval_env"}
+    legacy = rewrite(bundle, tmp_path / "j.zip", {"manifest.json": json.dumps(older).encode()})
+    ConcatenatedPolicy.load(legacy).close()  # bundles written before the field still load

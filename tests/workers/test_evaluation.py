@@ -155,3 +155,6 @@ def test_measured_training_defaults_apply_by_robot_and_yield_to_the_mission() ->
     assert training.eval_env_options("quadrotor").guide_feedforward == 1.0  # same meaning
     off = tiny_mission(env={"guide_feedforward": None}).training.env_options("quadrotor")
     assert off.guide_feedforward is None
+    for mode in ("rrt-paper", "ned", "tl"):  # the baselines do not follow the guide
+        baseline = tiny_mission(reward={"mode": mode}).training
+        assert baseline.env_options("unicycle").guide_feedforward is None
