@@ -114,29 +114,15 @@ leaving the guide costs what a crash costs and the off-guide wandering never fil
 buffer. Evaluations never stop a stalled episode."""
 
 GUIDED_MODES = frozenset({"rrt", "g-rrt"})
-"""Reward modes that take ``STALL_ENV_DEFAULTS`` and ``FEEDFORWARD_ENV_DEFAULTS`` (both read
-the guide): ours. ``rrt-paper`` is the paper's method as published; ``ned`` and ``tl`` must not
-learn from the guide."""
-
-HEADING_ENV_DEFAULTS: dict[str, Any] = {"min_forward": 0.2}
-"""Defaults for robots driven by (forward, turn) actions, in training and evaluation alike (it
-changes what an action means): the forward command maps onto [0.2, 1] of the top speed, which
-removes the parking optimum; without it every measured agent learned to stand still."""
-
-
-FEEDFORWARD_ENV_DEFAULTS: dict[str, dict[str, Any]] = {
-    "quadrotor": {"guide_feedforward": 1.0},
-    "unicycle": {"guide_feedforward": 1.0},
-}
+"""Reward modes that take ``STALL_ENV_DEFAULTS`` and ``FEEDFORWARD_ENV_DEFAULTS: dict[str, dict[str, Any]] = {"quadrotor": {"guide_feedforward": 1.0}}
 """Defaults per robot for ``GUIDED_MODES``, in training and evaluation alike (it changes what an
-action means): the
-full command toward the guide's carrot (a velocity for the quadrotor, a turn for the unicycle)
-is added to the policy's action (``envs.feedforward``), which then learns the correction.
-Measured (``bench/LEARNING.md``): quadrotor phi_1,inf sub-task 0 from 0 % at 40k steps to 100 %
-at 5k; the car's U-turn sub-tasks 3 (seed 0) from 95k steps to 25k and 2 (seed 4) from 0 % at
-80k to 100 % at 25k. The feed-forward alone (a zero policy) crashes on those sub-tasks. Not yet
-the racecar: one screen of its U-turn sub-task 2 kept a 69 % policy at a 60k budget (36.5 % at
-150k without), periodic evaluations between 0 and 60 %; its whole mission is unmeasured."""
+action means): the full velocity command toward the guide's carrot is added to the policy's
+action (``envs.feedforward``), which then learns the correction. Measured
+(``bench/LEARNING.md``): quadrotor phi_1,inf sub-task 0 from 0 % at 40k steps to 100 % at 5k;
+the feed-forward alone (a zero policy) crashes there. Not the unicycle: it trained the car's
+U-turn sub-task 2 of seed 4 (0 % at 80k -> 100 % at 25k) but held sub-task 3 at about 50 % on
+two seeds up to 120k (a full turn command leaves the policy no authority to turn the other
+way), where the defaults reach the target."""
 
 
 class RewardSpec(BaseModel):

@@ -149,12 +149,12 @@ def test_measured_training_defaults_apply_by_robot_and_yield_to_the_mission() ->
         chosen.env_options("unicycle").min_forward,
     ) == (0.0, None)
     quad = training.env_options("quadrotor")
-    assert quad.guide_feedforward == car.guide_feedforward == 1.0
-    assert point.guide_feedforward is None
+    assert quad.guide_feedforward == 1.0
+    assert point.guide_feedforward is None and car.guide_feedforward is None
     assert training.env_options("racecar").guide_feedforward is None
     assert training.eval_env_options("quadrotor").guide_feedforward == 1.0  # same meaning
     off = tiny_mission(env={"guide_feedforward": None}).training.env_options("quadrotor")
     assert off.guide_feedforward is None
     for mode in ("rrt-paper", "ned", "tl"):  # the baselines do not follow the guide
         baseline = tiny_mission(reward={"mode": mode}).training
-        assert baseline.env_options("unicycle").guide_feedforward is None
+        assert baseline.env_options("quadrotor").guide_feedforward is None
