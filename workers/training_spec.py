@@ -114,7 +114,17 @@ leaving the guide costs what a crash costs and the off-guide wandering never fil
 buffer. Evaluations never stop a stalled episode."""
 
 GUIDED_MODES = frozenset({"rrt", "g-rrt"})
-"""Reward modes that take ``STALL_ENV_DEFAULTS`` and ``FEEDFORWARD_ENV_DEFAULTS: dict[str, dict[str, Any]] = {"quadrotor": {"guide_feedforward": 1.0}}
+"""Reward modes that take ``STALL_ENV_DEFAULTS`` and ``FEEDFORWARD_ENV_DEFAULTS`` (both read
+the guide): ours. ``rrt-paper`` is the paper's method as published; ``ned`` and ``tl`` must not
+learn from the guide."""
+
+HEADING_ENV_DEFAULTS: dict[str, Any] = {"min_forward": 0.2}
+"""Defaults for robots driven by (forward, turn) actions, in training and evaluation alike (it
+changes what an action means): the forward command maps onto [0.2, 1] of the top speed, which
+removes the parking optimum; without it every measured agent learned to stand still."""
+
+
+FEEDFORWARD_ENV_DEFAULTS: dict[str, dict[str, Any]] = {"quadrotor": {"guide_feedforward": 1.0}}
 """Defaults per robot for ``GUIDED_MODES``, in training and evaluation alike (it changes what an
 action means): the full velocity command toward the guide's carrot is added to the policy's
 action (``envs.feedforward``), which then learns the correction. Measured
