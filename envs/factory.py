@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import gymnasium as gym
 import numpy as np
 
-from envs.handover import Pose, handover_poses
+from envs.handover import Pose, checked_starts, handover_poses
 from envs.nav_env import Leg, NavEnv
 from envs.observation import ObservationMode
 from envs.rewards import EnvConfigError, RegionTest, RewardConfig, reward_config, reward_mode
@@ -257,7 +257,7 @@ def make_env(
             mission_start = Pose(start, facing)
             real = handover_poses(world, plan.subtasks, k, mission_start)
     if starts is not None:
-        real = _checked_starts(starts, world)
+        real = checked_starts(starts, world)
     own = robot is None
     bot = robot if robot is not None else make_robot(spec.model, world, spec.radius, spec.params)
     try:
@@ -277,22 +277,6 @@ def make_env(
         if own:
             bot.close()
         raise
-
-
-def _checked_starts(starts: Sequence[Pose], world: World) -> list[Pose]:
-    checked = list(starts)
-    if not checked:
-        raise EnvConfigError("starts", "no start pose given")
-    lo, hi = world.bounds[:, 0], world.bounds[:, 1]
-    for i, pose in enumerate(checked):
-        p = np.asarray(pose.position, dtype=float)
-        if p.shape != (world.dim,) or not np.all(np.isfinite(p)):
-            raise EnvConfigError(f"starts.{i}", f"must be a finite {world.dim}D point")
-        if np.any(p < lo) or np.any(p > hi):
-            raise EnvConfigError(f"starts.{i}", f"{p.tolist()} is outside the world bounds")
-        if not math.isfinite(pose.heading):
-            raise EnvConfigError(f"starts.{i}", f"heading must be finite, got {pose.heading}")
-    return checked
 
 
 def build_course(

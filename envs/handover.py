@@ -104,3 +104,21 @@ def _last_yaw(path: np.ndarray) -> float:
         if float(np.hypot(*(b - a)[:2])) > 1e-9:
             return _yaw(b - a)
     return 0.0
+
+
+def checked_starts(starts: Sequence[Pose], world: World) -> list[Pose]:
+    """``starts`` given in place of the real ones, checked: at least one, each a finite point of
+    the world's dimension inside its bounds with a finite heading."""
+    checked = list(starts)
+    if not checked:
+        raise EnvConfigError("starts", "no start pose given")
+    lo, hi = world.bounds[:, 0], world.bounds[:, 1]
+    for i, pose in enumerate(checked):
+        p = np.asarray(pose.position, dtype=float)
+        if p.shape != (world.dim,) or not np.all(np.isfinite(p)):
+            raise EnvConfigError(f"starts.{i}", f"must be a finite {world.dim}D point")
+        if np.any(p < lo) or np.any(p > hi):
+            raise EnvConfigError(f"starts.{i}", f"{p.tolist()} is outside the world bounds")
+        if not math.isfinite(pose.heading):
+            raise EnvConfigError(f"starts.{i}", f"heading must be finite, got {pose.heading}")
+    return checked
