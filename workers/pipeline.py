@@ -172,19 +172,16 @@ def assemble(
     plan: MissionPlan,
     results: list[TrainResult],
     bundle: str | Path,
-    evaluation: MissionEvaluation | None = None,
-    repairs: list[RepairRound] | None = None,
+    evaluation: MissionEvaluation,
+    repairs: list[RepairRound],
 ) -> PipelineResult:
-    """After every sub-task is trained: whole-mission rollouts (unless ``evaluation`` holds
-    them), then the bundle at ``bundle`` (what the service's chord callback runs too)."""
+    """The bundle at ``bundle`` of the results ``finish`` kept, with their mission rollouts."""
     from workers.bundle import write_bundle
 
-    if evaluation is None:
-        evaluation = evaluate_results(mission, plan, results)
     seeds = [r.seed for r in results]
     path = write_bundle(bundle, mission, plan, results, evaluation, seeds)
     return PipelineResult(
-        bundle=path, plan=plan, results=results, evaluation=evaluation, repairs=repairs or []
+        bundle=path, plan=plan, results=results, evaluation=evaluation, repairs=repairs
     )
 
 
