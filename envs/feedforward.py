@@ -27,9 +27,6 @@ AHEAD = 2
 WORLD_FRAME_ROBOTS = frozenset({"point", "quadrotor"})
 """Robots whose action is a world-frame command, one component per workspace axis."""
 
-STEERED_ROBOTS = frozenset({"unicycle", "racecar"})
-"""Robots driven by (forward, turn) actions, turn positive to the left."""
-
 
 def carrot_direction(
     centres: np.ndarray, index: int, x: Sequence[float] | np.ndarray

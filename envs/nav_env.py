@@ -38,7 +38,6 @@ import numpy as np
 from gymnasium import spaces
 
 from envs.feedforward import (
-    STEERED_ROBOTS,
     WORLD_FRAME_ROBOTS,
     carrot_direction,
     steering_toward,
@@ -162,7 +161,7 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
                 f"only for robots driven by (forward, turn) actions, not a {robot.name}",
             )
         self._feedforward: float | None = options.guide_feedforward
-        supported = WORLD_FRAME_ROBOTS | STEERED_ROBOTS
+        supported = WORLD_FRAME_ROBOTS | HEADING_FEATURES.keys()
         if self._feedforward is not None and robot.name not in supported:
             raise EnvConfigError(
                 "options.guide_feedforward",
