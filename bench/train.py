@@ -30,6 +30,7 @@ import dataclasses
 import json
 import multiprocessing
 import os
+import shutil
 import signal
 import statistics
 import sys
@@ -70,10 +71,12 @@ class Row:
     """Budget per sub-task (None: the mission's ``training.n_timesteps``)."""
     env: tuple[tuple[str, Any], ...] = ()
     """``training.env`` overrides (a variant of the method, named in the folder)."""
+    training: tuple[tuple[str, Any], ...] = ()
+    """Other ``training`` overrides (``handover_rounds``, ...; named in the folder too)."""
 
     @property
     def variant(self) -> str:
-        return self.method + "".join(f"+{k}={v}" for k, v in self.env)
+        return self.method + "".join(f"+{k}={v}" for k, v in (*self.env, *self.training))
 
     @property
     def folder(self) -> str:
@@ -127,6 +130,7 @@ def load_mission(name: str, row: Row) -> MissionSpec:
         document["name"] = name
         document["robot"]["model"] = model
     training = document.setdefault("training", {})
+    training.update(dict(row.training))
     training["seed"] = row.seed
     training.setdefault("env", {}).update(dict(row.env))
     training.setdefault("reward", {})["mode"] = row.method
@@ -136,11 +140,20 @@ def load_mission(name: str, row: Row) -> MissionSpec:
 
 
 def row_jobs(row: Row, out: Path) -> tuple[MissionSpec, Any, list[SubtaskJob]]:
-    """The row's mission, its plan (made once, stored in the row folder) and its jobs."""
+    """The row's mission, its plan and its jobs. The plan is made once per mission and shared
+    by every row of it (``OUT/<mission>/plan.json``, copied into the row folder): the planner
+    refines for ``refine_seconds``, so planning per row would give each method and seed its own
+    guides."""
     from workers.pipeline import plan_for, subtask_jobs
 
     mission = load_mission(row.mission, row)
+    shared, own = out / row.mission / "plan.json", out / row.folder / "plan.json"
+    if shared.is_file() and not own.is_file():
+        own.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(shared, own)
     plan = plan_for(mission, out / row.folder)
+    if not shared.is_file():
+        shutil.copyfile(own, shared)
     jobs = subtask_jobs(mission, plan)
     if row.method == "g-rrt":
         jobs = jobs[:1]  # one agent for the whole lasso
@@ -434,6 +447,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--out", default=str(ROOT / "var" / "bench" / "train"), help="run folders")
     p.add_argument("--jobs", type=int, default=2, help="training processes at once")
     p.add_argument("--env", help='training.env overrides of every row, JSON ({"heading_noise": 3})')
+    p.add_argument(
+        "--training", help='other training overrides of every row, JSON ({"handover_rounds": 0})'
+    )
     p.add_argument("--report", action="store_true", help="print the table of what is on disk")
     p.add_argument("--overhead", action="store_true", help="env cost against raw SB3 instead")
     p.add_argument("--overhead-steps", type=int, default=3000)
@@ -445,6 +461,9 @@ def main(argv: list[str] | None = None) -> None:
     if args.env:
         overrides = tuple(sorted(json.loads(args.env).items()))
         rows = [dataclasses.replace(r, env=overrides) for r in rows]
+    if args.training:
+        overrides = tuple(sorted(json.loads(args.training).items()))
+        rows = [dataclasses.replace(r, training=overrides) for r in rows]
     out = Path(args.out)
     if not args.report:
         run_rows(rows, out, args.jobs)
