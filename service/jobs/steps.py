@@ -32,7 +32,6 @@ from service.models import JobStatus, MissionStatus
 from service.settings import Settings
 from workers.mission import MissionSpec, parse_mission
 from workers.pipeline import finish, plan_for, subtask_jobs
-from workers.training_spec import SubtaskJob
 
 log = logging.getLogger(__name__)
 
@@ -335,9 +334,11 @@ def _all_done(session: Session, mission_id: str) -> bool:
 
 def assemble_step(settings: Settings, mission_id: str) -> str:
     """Once every job is done: whole-mission rollouts, hand-over repair while the mission is
-    below its target (``workers.handover_repair``; its jobs train here, one after the other),
-    ``bundle.zip``, status done. Returns what happened (``done``, ``waiting``, ``busy``, ...)."""
-    from workers.training import TrainResult, train_subtask
+    below its target (``workers.handover_repair``; its jobs train here, one after the other,
+    reporting in the mission's news, and a cancel stops them), ``bundle.zip``, status done.
+    Returns what happened (``done``, ``waiting``, ``busy``, ``cancelled``, ...)."""
+    from service.jobs.repair import RepairCancelledError, RepairMonitor
+    from workers.training import TrainResult
 
     db = database_for(settings)
     with db.session() as session:
@@ -368,22 +369,26 @@ def assemble_step(settings: Settings, mission_id: str) -> str:
         spec = _spec(document)
         folder = mission_dir(settings, mission_id)
         plan = plan_for(spec, folder)
-
-        def run(batch: list[tuple[SubtaskJob, Path, int]]) -> list[TrainResult]:
-            return [train_subtask(job, target) for job, target, _ in batch]
-
-        out = finish(spec, plan, results, folder, run)
-        evaluation = out.evaluation
-        with db.session() as session:
-            repository.set_result(session, mission_id, evaluation.to_json(), str(out.bundle))
-            repository.record_evaluation(
-                session,
-                mission_id,
-                None,
-                steps=sum(r.steps for r in out.results),
-                episodes=evaluation.episodes,
-                success_rate=evaluation.success_rate,
-            )
-            repository.set_status(session, mission_id, MissionStatus.done)
-        return "done"
+        monitor = RepairMonitor(db, mission_id, settings.heartbeat_seconds)
+        try:
+            out = finish(spec, plan, results, folder, monitor.run)
+        except RepairCancelledError:
+            cancelled = True
+        else:
+            evaluation = out.evaluation
+            with db.session() as session:
+                repository.set_result(session, mission_id, evaluation.to_json(), str(out.bundle))
+                repository.record_evaluation(
+                    session,
+                    mission_id,
+                    None,
+                    steps=sum(r.steps for r in out.results),
+                    episodes=evaluation.episodes,
+                    success_rate=evaluation.success_rate,
+                )
+                repository.set_status(session, mission_id, MissionStatus.done)
+            return "done"
+    if cancelled:  # the repair's checkpoints stay: assembling again would resume them
+        cancel_mission(db, mission_id)
+        return "cancelled"
     return "failed"

@@ -175,6 +175,18 @@ def halted(session: Session, mission_id: str) -> bool:
     return row is None or bool(row[0]) or row[1] in FINAL_STATES
 
 
+def set_news(session: Session, mission_id: str, news: str) -> None:
+    """Progress of a mission between its transitions (the hand-over repair's), in its
+    ``reason`` and the event feed; nothing once it ended."""
+    changed = session.execute(
+        update(Mission)
+        .where(Mission.id == mission_id, Mission.status.not_in(FINAL_STATES))
+        .values(reason=news)
+    )
+    if getattr(changed, "rowcount", 0):
+        record_event(session, mission_id, "news", {"reason": news})
+
+
 def set_plan(
     session: Session, mission_id: str, plan: dict[str, Any], plan_image: str | None = None
 ) -> None:

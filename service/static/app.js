@@ -242,7 +242,8 @@ function missionTable(page) {
   }
   const rows = page.items.map((m) => [
     h("a", { href: `#/missions/${m.id}` }, m.name),
-    h("div", {}, badge(m.status), m.reason ? h("div", { class: "reason" }, m.reason) : null),
+    h("div", {}, badge(m.status), m.reason
+      ? h("div", { class: ACTIVE.has(m.status) ? "reason news" : "reason" }, m.reason) : null),
     m.jobs ? progressBars(m.jobs) : h("span", { class: "muted" }, "–"),
     when(m.created_at),
   ]);
@@ -493,7 +494,8 @@ function renderMission(mission, parts, image, bundle) {
     h("p", { class: "muted" }, `${mission.id} · robot ${mission.robot} · created ${when(mission.created_at)}` +
       ` · updated ${when(mission.updated_at)}`),
     h("p", {}, h("code", {}, mission.task)),
-    mission.reason ? h("p", { class: "error-text", id: "mission-reason" }, mission.reason) : null,
+    mission.reason ? h("p", { class: ACTIVE.has(mission.status) ? "news" : "error-text",
+      id: "mission-reason" }, mission.reason) : null,
     mission.cancel_requested && ACTIVE.has(mission.status)
       ? h("p", { class: "muted" }, "Cancel requested: running sub-tasks stop at their next check.")
       : null,

@@ -178,6 +178,37 @@ def test_cancel_during_training_stops_the_job_and_keeps_its_checkpoint(
     assert Path(saved[0].path).is_file()
 
 
+def test_hand_over_repair_reports_its_progress_and_stops_on_cancel(settings: Settings) -> None:
+    # 100 steps cannot train the mission: the assembly repairs, with a budget to outlast the test
+    doc = tiny_mission(n_timesteps=100, eval_freq=50, handover_steps=100_000)
+    mission_id = submit(settings, doc.model_dump(mode="json"))
+    plan_step(settings, mission_id, Recorder())
+    for job in load(settings, mission_id)[1]:
+        assert train_step(settings, mission_id, job.index, Recorder(), in_chord=True) == "done"
+    outcome: list[str] = []
+    thread = threading.Thread(target=lambda: outcome.append(assemble_step(settings, mission_id)))
+    thread.start()
+    db, news = Database(settings.database_url), []
+    deadline = time.monotonic() + 90
+    while not news:
+        assert time.monotonic() < deadline and thread.is_alive()
+        time.sleep(0.05)
+        with db.session() as session:
+            events = repository.events_after(session, mission_id, 0, limit=1000)
+            news = [e.payload["reason"] for e in events if e.kind == "news"]
+    mission = load(settings, mission_id)[0]
+    assert mission.status == MissionStatus.evaluating
+    assert news[0].startswith("hand-over repair of sub-task ") and " of 100000 steps" in news[0]
+    with db.session() as session:
+        repository.request_cancel(session, mission_id)
+    thread.join(timeout=30)
+    assert outcome == ["cancelled"]
+    mission = load(settings, mission_id)[0]
+    assert mission.status == MissionStatus.cancelled and mission.bundle_path is None
+    repairs = list((settings.artifact_dir / mission_id).glob("subtask_*/handover_1"))
+    assert repairs, "the stopped repair keeps its folder, to resume from"
+
+
 def test_a_job_handed_to_another_worker_stops_writing(settings: Settings) -> None:
     mission_id = submit(settings)
     plan_step(settings, mission_id, Recorder())
