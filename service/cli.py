@@ -387,7 +387,7 @@ def submit(
         if not wait:
             return
         try:
-            final = client.wait(mission_id, _ProgressPrinter(), poll_seconds=poll)
+            final = client.wait(mission_id, ProgressPrinter(), poll_seconds=poll)
         except ServiceError as error:
             typer.echo(f"error: {error}", err=True)
             raise typer.Exit(1) from error
@@ -412,7 +412,7 @@ def submit(
     typer.echo(f"bundle written to {target}")
 
 
-class _ProgressPrinter:
+class ProgressPrinter:
     """Prints a mission's status when it changes, and a sub-task's progress when its status
     changes or it passes another tenth of its budget."""
 
@@ -421,6 +421,9 @@ class _ProgressPrinter:
 
     def __call__(self, mission: dict[str, Any]) -> None:
         self._line("status", mission["status"], f"status: {mission['status']}")
+        news = mission.get("reason") if mission["status"] == "evaluating" else None
+        if news:  # the hand-over repair: one line per repair job, not per progress write
+            self._line("news", news.partition(":")[0], f"  {news}")
         for job in mission.get("jobs", []):
             rate = job.get("success_rate")
             eta = job.get("eta_seconds")

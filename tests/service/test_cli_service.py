@@ -20,6 +20,7 @@ import pytest
 from typer.testing import CliRunner
 
 from service.api.app import create_app
+from service.cli import ProgressPrinter
 from service.cli import app as cli
 from service.db import Database, upgrade
 from service.models import MissionStatus
@@ -88,6 +89,24 @@ def test_submit_wait_downloads_the_bundle_or_fails(
         assert result.exit_code == 1, result.output
         assert "mission failed: no plan: unsatisfiable" in result.output
         assert not (out / "bundle.zip").exists()
+
+
+def test_the_progress_shows_each_repair_job_once(capsys: pytest.CaptureFixture[str]) -> None:
+    show = ProgressPrinter()
+    for reason in (
+        "hand-over repair of sub-task 1 (1 of 2): 0 of 30000 steps",
+        "hand-over repair of sub-task 1 (1 of 2): 5000 of 30000 steps, success 40%",
+        "hand-over repair of sub-task 2 (2 of 2): 0 of 30000 steps",
+    ):
+        show({"status": "evaluating", "reason": reason, "jobs": []})
+    show({"status": "failed", "reason": "assembly: boom", "jobs": []})
+    lines = capsys.readouterr().out.splitlines()
+    assert lines == [
+        "status: evaluating",
+        "  hand-over repair of sub-task 1 (1 of 2): 0 of 30000 steps",
+        "  hand-over repair of sub-task 2 (2 of 2): 0 of 30000 steps",
+        "status: failed",
+    ]
 
 
 def test_submit_reports_problems_and_bad_keys(
