@@ -188,7 +188,8 @@ def test_hand_over_repair_reports_its_progress_and_stops_on_cancel(settings: Set
     outcome: list[str] = []
     thread = threading.Thread(target=lambda: outcome.append(assemble_step(settings, mission_id)))
     thread.start()
-    db, news = Database(settings.database_url), []
+    db = Database(settings.database_url)
+    news: list[str] = []
     deadline = time.monotonic() + 90
     while not news:
         assert time.monotonic() < deadline and thread.is_alive()
