@@ -1,0 +1,167 @@
+"""Drivable guides: a sub-task's polyline redrawn as a path a car can follow.
+
+TL-RRT* plans polylines for a point. A car that only drives forward and turns no tighter than
+a radius ``rho`` cannot follow a polyline's corners, least of all where the lasso leaves a
+region the way it came in: the mission hands the car over facing into the region and the
+polyline turns back on itself. :func:`drivable_path` redraws the polyline from the car's real
+start pose as a chain of Dubins paths (:mod:`planner.dubins`) through waypoints taken along the
+polyline (one every ``spacing``, and every corner, each facing along the polyline), choosing
+by dynamic programming the shortest chain that ends at the polyline's last point. Each Dubins
+piece must keep ``clearance`` from the obstacles and the bounds, and may meet only regions the
+polyline (or the start) already meets, so the redrawn path produces no label the plan did not.
+A U-turn becomes a loop of radius ``rho`` wherever there is room for one.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from planner.dubins import DubinsPath, Pose2, dubins_words
+from planner.world import World
+
+STEP = 0.05
+"""Spacing (m) of the points a Dubins piece is checked and drawn with."""
+
+
+@dataclass(frozen=True)
+class Waypoint:
+    """A pose on the polyline and the polyline length before it."""
+
+    pose: Pose2
+    along: float
+
+
+def waypoints(path: np.ndarray, spacing: float) -> list[Waypoint]:
+    """Poses every ``spacing`` metres or less along ``path`` ``(n, 2)`` and at every vertex,
+    facing along the polyline (the bisector of the two segments at an interior vertex, the
+    outgoing segment where they cancel). Repeated points are dropped."""
+    pts = [np.asarray(path[0], dtype=float)]
+    for p in np.asarray(path[1:], dtype=float):
+        if float(np.hypot(*(p - pts[-1]))) > 1e-9:
+            pts.append(p)
+    if len(pts) < 2:
+        return [Waypoint(Pose2(float(pts[0][0]), float(pts[0][1]), 0.0), 0.0)]
+    units = [(b - a) / float(np.hypot(*(b - a))) for a, b in itertools.pairwise(pts)]
+    out: list[Waypoint] = []
+    along = 0.0
+    for k, (a, b) in enumerate(itertools.pairwise(pts)):
+        length = float(np.hypot(*(b - a)))
+        heading = math.atan2(float(units[k][1]), float(units[k][0]))
+        if k == 0:
+            out.append(Waypoint(Pose2(float(a[0]), float(a[1]), heading), 0.0))
+        pieces = max(1, math.ceil(length / spacing - 1e-9))
+        for i in range(1, pieces):
+            p = a + (b - a) * (i / pieces)
+            pose = Pose2(float(p[0]), float(p[1]), heading)
+            out.append(Waypoint(pose, along + length * i / pieces))
+        along += length
+        if k + 1 < len(units):
+            mean = units[k] + units[k + 1]
+            if float(np.hypot(*mean)) < 1e-9:
+                mean = units[k + 1]
+            heading = math.atan2(float(mean[1]), float(mean[0]))
+        out.append(Waypoint(Pose2(float(b[0]), float(b[1]), heading), along))
+    return out
+
+
+class _Checker:
+    """Whether a Dubins piece keeps clear of obstacles and bounds and meets only allowed regions."""
+
+    def __init__(self, world: World, clearance: float, allowed: np.ndarray) -> None:
+        self.world, self.clearance, self.forbidden = world, clearance, ~allowed
+
+    def points(self, piece: DubinsPath) -> np.ndarray | None:
+        """The piece's points when it is drivable, else None."""
+        pts, _ = piece.sample(STEP)
+        if not np.all(self.world.segments_free(pts[:-1], pts[1:], self.clearance)):
+            return None
+        if self.forbidden.any() and np.any(self.world.label_matrix(pts)[:, self.forbidden]):
+            return None
+        return pts
+
+
+def allowed_regions(world: World, path: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """``(len(region_names),)`` the regions the polyline or the start point meets."""
+    pts = [np.asarray(start, dtype=float)[None, :]]
+    for a, b in itertools.pairwise(np.asarray(path, dtype=float)):
+        count = max(1, math.ceil(float(np.hypot(*(b - a))) / (STEP / 2)))
+        pts.append(a + (b - a) * np.linspace(0.0, 1.0, count + 1)[:, None])
+    return np.asarray(world.label_matrix(np.vstack(pts)).any(axis=0))
+
+
+def drivable_path(
+    world: World,
+    path: np.ndarray,
+    start: Pose2,
+    rho: float,
+    clearance: float,
+    *,
+    spacing: float | None = None,
+    reach: float | None = None,
+) -> np.ndarray | None:
+    """``path`` ``(n, 2)`` redrawn from ``start`` as Dubins pieces of turning radius ``rho``
+    (see the module docstring): points ``(m, 2)`` at most ``STEP`` apart from the start's
+    position to ``path[-1]``, or None when no such chain keeps ``clearance``.
+
+    ``spacing`` (default ``rho``) is the waypoint spacing along the polyline and ``reach``
+    (default ``6 rho``) the longest stretch of polyline one piece may replace."""
+    if world.dim != 2:
+        raise ValueError("drivable paths are planar: the world must be 2D")
+    if not rho > 0 or not clearance >= 0:
+        raise ValueError("the turning radius must be > 0 and the clearance >= 0")
+    poly = np.asarray(path, dtype=float)
+    nodes = waypoints(poly, spacing or rho)
+    span = reach if reach is not None else 6.0 * rho
+    checker = _Checker(world, clearance, allowed_regions(world, poly, np.array([start.x, start.y])))
+    count = len(nodes)
+    cost = [math.inf] * count
+    parent = [-2] * count
+    pieces: list[np.ndarray | None] = [None] * count
+
+    def relax(source: int, origin: Pose2, base: float, lo: float) -> None:
+        for j in range(count):
+            if nodes[j].along < lo or nodes[j].along > lo + span:
+                continue
+            if j <= source:
+                continue
+            for piece in dubins_words(origin, nodes[j].pose, rho):
+                total = base + piece.length
+                if total >= cost[j]:
+                    break
+                pts = checker.points(piece)
+                if pts is not None:
+                    cost[j], parent[j], pieces[j] = total, source, pts
+                    break
+
+    relax(-1, start, 0.0, 0.0)
+    for i in range(count):
+        if math.isfinite(cost[i]):
+            relax(i, nodes[i].pose, cost[i], nodes[i].along)
+    end = count - 1
+    if not math.isfinite(cost[end]):
+        return None
+    chain: list[np.ndarray] = []
+    j = end
+    while j >= 0:
+        piece = pieces[j]
+        assert piece is not None
+        chain.append(piece)
+        j = parent[j]
+    chain.reverse()
+    return np.vstack([chain[0], *(c[1:] for c in chain[1:])])
+
+
+def thin(points: np.ndarray, spacing: float) -> np.ndarray:
+    """Points of the dense path ``points`` every ``spacing`` metres of arc length (the first
+    and the last kept): the waypoints of a guide whose balls sit ``spacing`` apart."""
+    if not spacing > 0:
+        raise ValueError("the spacing must be > 0")
+    pts = np.asarray(points, dtype=float)
+    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    count = max(1, math.ceil(along[-1] / spacing - 1e-9))
+    marks = np.linspace(0.0, along[-1], count + 1)
+    return np.stack([np.interp(marks, along, pts[:, j]) for j in range(pts.shape[1])], axis=1)

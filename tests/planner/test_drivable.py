@@ -1,0 +1,86 @@
+"""Drivable paths: a polyline redrawn from a car's pose as clear, curvature-bounded arcs."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from planner.drivable import STEP, drivable_path, thin, waypoints
+from planner.dubins import Pose2
+from planner.shapes import Ball, Box
+from planner.world import World
+
+LANE = np.array([[2.0, 2.0], [10.0, 2.0]])
+
+
+def _world(obstacles: list[Box] | None = None, height: float = 6.0) -> World:
+    regions = {"far": Ball(np.array([10.0, 2.0]), 0.8), "off": Ball(np.array([1.0, 4.5]), 0.8)}
+    return World(np.array([[-2.0, 12.0], [-2.0, height]]), obstacles or [], regions)
+
+
+def _turns(points: np.ndarray) -> np.ndarray:
+    """Heading change per metre between consecutive steps (discrete curvature)."""
+    steps = np.diff(points, axis=0)
+    yaw = np.arctan2(steps[:, 1], steps[:, 0])
+    length = np.linalg.norm(steps, axis=1)
+    return np.abs(np.remainder(np.diff(yaw) + math.pi, 2 * math.pi) - math.pi) / length[1:]
+
+
+def test_a_start_facing_along_a_straight_polyline_keeps_it() -> None:
+    path = drivable_path(_world(), LANE, Pose2(2.0, 2.0, 0.0), rho=1.0, clearance=0.3)
+    assert path is not None
+    np.testing.assert_allclose(path[0], [2.0, 2.0])
+    np.testing.assert_allclose(path[-1], [10.0, 2.0])
+    assert np.abs(path[:, 1] - 2.0).max() < 1e-6
+    assert np.linalg.norm(np.diff(path, axis=0), axis=1).max() <= STEP + 1e-9
+
+
+def test_a_start_facing_away_turns_round_on_a_loop_of_the_radius() -> None:
+    world = _world()
+    path = drivable_path(world, LANE, Pose2(2.0, 2.0, math.pi), rho=1.0, clearance=0.3)
+    assert path is not None
+    length = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
+    assert length >= 8.0 + math.pi * 1.0 - 0.1  # at least a half circle more than the lane
+    assert _turns(path).max() <= 1.0 / 1.0 + 0.05
+    assert path[:, 0].min() < 2.0 - 0.9  # the loop goes out behind the start
+    assert not world.in_collision(path, 0.3).any()
+    np.testing.assert_allclose(path[-1], [10.0, 2.0])
+
+
+def test_the_loop_avoids_obstacles() -> None:
+    below = Box(np.array([-2.0, -2.0]), np.array([4.0, 1.2]))
+    world = _world([below])
+    path = drivable_path(world, LANE, Pose2(2.0, 2.0, math.pi), rho=1.0, clearance=0.3)
+    assert path is not None and path[:, 1].max() > 3.0  # round the top: the box is below
+    assert not world.in_collision(path, 0.3).any()
+
+
+def test_the_loop_meets_no_region_the_polyline_does_not_meet() -> None:
+    free = drivable_path(_world(), LANE, Pose2(2.0, 2.0, math.pi), rho=1.0, clearance=0.3)
+    assert free is not None and free[:, 1].min() < 1.0  # left alone it loops round the bottom
+    regions = {"far": Ball(np.array([10.0, 2.0]), 0.8), "off": Ball(np.array([1.0, 1.0]), 0.5)}
+    world = World(np.array([[-2.0, 12.0], [-2.0, 6.0]]), [], regions)
+    path = drivable_path(world, LANE, Pose2(2.0, 2.0, math.pi), rho=1.0, clearance=0.3)
+    assert path is not None and path[:, 1].max() > 3.0
+    assert not world.label_matrix(path)[:, world.region_names.index("off")].any()
+
+
+def test_no_room_to_turn_gives_none() -> None:
+    narrow = World(np.array([[-2.0, 12.0], [1.0, 3.0]]), [], {})
+    assert drivable_path(narrow, LANE, Pose2(2.0, 2.0, math.pi), rho=1.5, clearance=0.3) is None
+    with pytest.raises(ValueError, match="turning radius"):
+        drivable_path(narrow, LANE, Pose2(2.0, 2.0, 0.0), rho=0.0, clearance=0.3)
+
+
+def test_waypoints_face_along_the_polyline_and_thin_keeps_the_ends() -> None:
+    corner = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [2.0, 2.0]])
+    points = waypoints(corner, 0.5)
+    assert [round(w.along, 6) for w in points] == [0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0]
+    assert points[0].pose.theta == pytest.approx(0.0)
+    assert points[4].pose.theta == pytest.approx(math.pi / 4)  # the corner: the bisector
+    assert points[-1].pose.theta == pytest.approx(math.pi / 2)
+    dense = np.stack([np.linspace(0, 3, 61), np.zeros(61)], axis=1)
+    sparse = thin(dense, 1.0)
+    np.testing.assert_allclose(sparse, [[0, 0], [1, 0], [2, 0], [3, 0]], atol=1e-12)
