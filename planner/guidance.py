@@ -12,6 +12,12 @@ it in the state makes the reward Markovian (Cai et al., RA-L 2023). The reward i
 obstacle (first priority), ``R++`` at the destination, ``R+`` on a new minimum of ``D`` and 0
 otherwise.
 
+A guide that comes back near itself (a loop, a U-turn) has balls far apart in distance-to-go
+that overlap; there the global minimum lets a point "reach" the end of the loop from its start.
+A tracker with a ``window`` counts a ball only when it lies at most ``window`` balls past the
+progress index: a point moving along the guide enters its balls in order, so this never holds
+back real progress, and it cannot skip the loop.
+
 The envs layer calls this on every simulation step, so both paths are cheap: a vectorised batch
 path (a uniform grid of cell size ``2 r`` maps each cell to the few balls overlapping it, so a
 query costs O(balls per cell), not O(balls)) and a pure-Python scalar path for one point that
@@ -190,8 +196,9 @@ class Guide:
         """Path length of the guide (distance-to-go of its first ball)."""
         return float(self.dist_to_go[0])
 
-    def ball_index(self, points: np.ndarray) -> np.ndarray:
-        """``(n,)`` index of the ball realising ``D(x)`` for each point, -1 in no ball."""
+    def ball_index(self, points: np.ndarray, limit: np.ndarray | None = None) -> np.ndarray:
+        """``(n,)`` index of the ball realising ``D(x)`` for each point, -1 in no ball; with
+        ``limit`` ``(n,)``, among the balls of index at most ``limit`` only."""
         pts = np.atleast_2d(np.asarray(points, dtype=np.float64))
         cells = np.floor((pts - self._origin) / self._cell).astype(np.int64)
         inside = np.all((cells >= 0) & (cells < self._shape), axis=1)
@@ -202,6 +209,8 @@ class Guide:
         cand = np.where(hit[:, None], self._table[row], -1)
         diff = self.centers[np.maximum(cand, 0)] - pts[:, None, :]
         ok = (cand >= 0) & (np.einsum("nkd,nkd->nk", diff, diff) <= self._rr)
+        if limit is not None:
+            ok &= cand <= np.asarray(limit)[:, None]
         first = np.argmax(ok, axis=1)
         return np.where(ok.any(axis=1), cand[np.arange(len(pts)), first], -1)
 
@@ -211,14 +220,17 @@ class Guide:
         idx = self.ball_index(points)
         return np.where(idx >= 0, self.dist_to_go[np.maximum(idx, 0)], np.inf)
 
-    def locate(self, point: np.ndarray | tuple[float, ...] | list[float]) -> int:
+    def locate(
+        self, point: np.ndarray | tuple[float, ...] | list[float], limit: int | None = None
+    ) -> int:
         """Scalar :meth:`ball_index` of one point in pure Python (well under a microsecond in
-        2D and 3D)."""
+        2D and 3D); with ``limit``, among the balls of index at most ``limit`` only."""
         xs = point.tolist() if isinstance(point, np.ndarray) else point
+        top = self.num_balls if limit is None else limit
         if len(xs) == 2 == len(self._origin_t):
-            return _locate2(self, xs[0], xs[1])
+            return _locate2(self, xs[0], xs[1], top)
         if len(xs) == 3 == len(self._origin_t):
-            return _locate3(self, xs[0], xs[1], xs[2])
+            return _locate3(self, xs[0], xs[1], xs[2], top)
         inv = self._inv_cell
         key = tuple([math.floor((v - o) * inv) for v, o in zip(xs, self._origin_t, strict=False)])
         bucket = self._buckets.get(key)
@@ -226,6 +238,8 @@ class Guide:
             return -1
         rr = self._rr
         for i, c in bucket:
+            if i > top:
+                continue
             s = 0.0
             for v, w in zip(xs, c, strict=False):
                 s += (v - w) * (v - w)
@@ -234,7 +248,7 @@ class Guide:
         return -1
 
 
-def _locate2(guide: Guide, x0: float, x1: float) -> int:
+def _locate2(guide: Guide, x0: float, x1: float, top: int) -> int:
     """:meth:`Guide.locate` of a 2D point. A key computed for a point outside the grid may name
     another cell, but no ball contains such a point and every candidate is tested exactly."""
     o0, o1, inv, s0, s1, rr = guide._flat
@@ -243,12 +257,12 @@ def _locate2(guide: Guide, x0: float, x1: float) -> int:
     )
     if bucket is not None:
         for i, c0, c1 in bucket:
-            if (x0 - c0) * (x0 - c0) + (x1 - c1) * (x1 - c1) <= rr:
+            if i <= top and (x0 - c0) * (x0 - c0) + (x1 - c1) * (x1 - c1) <= rr:
                 return i
     return -1
 
 
-def _locate3(guide: Guide, x0: float, x1: float, x2: float) -> int:
+def _locate3(guide: Guide, x0: float, x1: float, x2: float, top: int) -> int:
     """:meth:`Guide.locate` of a 3D point (see :func:`_locate2`)."""
     o0, o1, o2, inv, s0, s1, s2, rr = guide._flat
     bucket = guide._flat_buckets.get(
@@ -258,6 +272,8 @@ def _locate3(guide: Guide, x0: float, x1: float, x2: float) -> int:
     )
     if bucket is not None:
         for i, c0, c1, c2 in bucket:
+            if i > top:
+                continue
             if (x0 - c0) * (x0 - c0) + (x1 - c1) * (x1 - c1) + (x2 - c2) * (x2 - c2) <= rr:
                 return i
     return -1
@@ -283,15 +299,21 @@ class ProgressTracker:
     """Progress index ``i_t`` and ``D_min`` for a batch of ``num_envs`` envs along one guide.
 
     ``reset`` starts envs afresh (optionally at ball ``k``, for a start-state curriculum);
-    ``update`` consumes the new points and reports which envs made progress.
+    ``update`` consumes the new points and reports which envs made progress. With ``window``,
+    only balls at most that many past an env's progress index count (see the module
+    docstring); None: every ball, the paper's ``D``.
     ``update_one`` is the allocation-free scalar path for one env: it reads plain Python
     mirrors of ``index`` and ``d_min`` and writes both on progress. The arrays are therefore
     read-only views; assign a whole new array (``tracker.index = ...``) to change them.
     """
 
-    def __init__(self, guide: Guide, num_envs: int = 1) -> None:
+    def __init__(self, guide: Guide, num_envs: int = 1, window: int | None = None) -> None:
+        if window is not None and window < 1:
+            raise ValueError("the progress window must be >= 1 ball")
         self.guide = guide
         self.num_envs = num_envs
+        self.window = window
+        self._reach = window if window is not None else guide.num_balls
         self._index = np.full(num_envs, -1, dtype=np.int64)
         self._d_min = np.full(num_envs, np.inf)
         self._index_list: list[int] = self._index.tolist()
@@ -342,7 +364,8 @@ class ProgressTracker:
             if np.any((idx < 0) | (idx >= self.guide.num_balls)):
                 raise ValueError("start_index must name a ball of the guide")
         elif points is not None:
-            idx = self.guide.ball_index(np.asarray(points).reshape(len(sel), -1))
+            pts = np.asarray(points).reshape(len(sel), -1)
+            idx = self.guide.ball_index(pts, np.full(len(sel), self._reach - 1))
         else:
             idx = np.full(sel.shape, -1, dtype=np.int64)
         self._index[sel] = idx
@@ -350,10 +373,15 @@ class ProgressTracker:
         self._index_list = self._index.tolist()
         self._d_min_list = self._d_min.tolist()
 
+    def locate(self, point: np.ndarray | tuple[float, ...] | list[float], after: int = -1) -> int:
+        """The ball of ``point`` this tracker would count for an env at progress index
+        ``after`` (-1: before any ball); -1 in none."""
+        return self.guide.locate(point, after + self._reach)
+
     def update(self, points: np.ndarray) -> StepProgress:
         """Consume one point per env ``(num_envs, d)``; a point improves when its ``D`` is
         strictly below the env's ``D_min`` so far."""
-        idx = self.guide.ball_index(points)
+        idx = self.guide.ball_index(points, self._index + self._reach)
         d = np.where(idx >= 0, self.guide.dist_to_go[np.maximum(idx, 0)], np.inf)
         improved = d < self._d_min
         self._d_min[:] = np.where(improved, d, self._d_min)
@@ -366,6 +394,7 @@ class ProgressTracker:
         self, env: int, point: np.ndarray | tuple[float, ...] | list[float]
     ) -> tuple[bool, int, float]:
         """Scalar :meth:`update` of env ``env``: ``(improved, index, d)``."""
+        top = self._index_list[env] + self._reach
         if self._dim == 2:
             # _locate2 inlined: this runs on every env step.
             x0, x1 = point[0], point[1]
@@ -375,13 +404,13 @@ class ProgressTracker:
             if bucket is not None:
                 for j, c0, c1 in bucket:
                     dx, dy = x0 - c0, x1 - c1
-                    if dx * dx + dy * dy <= rr:
+                    if j <= top and dx * dx + dy * dy <= rr:
                         i = j
                         break
         elif self._dim == 3:
-            i = _locate3(self.guide, point[0], point[1], point[2])
+            i = _locate3(self.guide, point[0], point[1], point[2], top)
         else:
-            i = self.guide.locate(point)
+            i = self.guide.locate(point, top)
         if i < 0:
             return False, self._index_list[env], _INF
         d = self._dist[i]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -146,3 +148,39 @@ def test_reward_priorities_and_constants() -> None:
     for o, g, i in zip(obstacle, goal, improved, strict=True):
         assert paper_reward_one(bool(o), bool(g), bool(i)) == paper_reward(o, g, i)
     assert paper_reward_one(False, False, True, c) == 1.0
+
+
+def _hairpin() -> Guide:
+    """Out along y = 0 and back along y = 0.6: the return balls overlap the outward ones."""
+    return Guide.from_path(np.array([[0.0, 0.0], [3.0, 0.0], [3.0, 0.6], [0.0, 0.6]]), r=0.5)
+
+
+def test_a_progress_window_stops_a_hairpin_from_being_cut_short() -> None:
+    guide = _hairpin()
+    start = [0.1, 0.2]
+    free, windowed = ProgressTracker(guide), ProgressTracker(guide, window=2)
+    assert free.locate(start) == guide.num_balls - 1  # the paper's D: the end of the hairpin
+    assert windowed.locate(start) == 0
+    improved, index, _ = free.update_one(0, start)
+    assert improved and index == guide.num_balls - 1
+    improved, index, _ = windowed.update_one(0, start)
+    assert improved and index == 0
+    # Driving the guide, the windowed tracker passes every ball in order.
+    dense = np.vstack([np.linspace(a, b, 30) for a, b in itertools.pairwise(guide.centers)])
+    seen = [windowed.update_one(0, p)[1] for p in dense]
+    assert sorted(set(seen)) == list(range(guide.num_balls))
+    assert seen == sorted(seen)
+
+
+def test_the_batch_path_and_reset_respect_the_window() -> None:
+    guide = _hairpin()
+    tracker = ProgressTracker(guide, num_envs=2, window=2)
+    tracker.reset(points=np.array([[0.1, 0.1], [1.2, 0.1]]))
+    assert tracker.index.tolist() == [0, 1]  # reset by points looks only into the first window
+    step = tracker.update(np.array([[0.1, 0.5], [2.9, 0.1]]))
+    assert step.index.tolist() == [0, 3]
+    assert ProgressTracker(guide).update(np.array([[0.1, 0.5]])).index.tolist() == [
+        guide.num_balls - 1
+    ]
+    with pytest.raises(ValueError, match="window"):
+        ProgressTracker(guide, window=0)
