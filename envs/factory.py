@@ -1,11 +1,11 @@
-"""``make_env``: the navigation env of one sub-task of a mission, its options and Gymnasium id.
+"""``make_env``: the navigation env of one sub-task of a mission, and its Gymnasium id.
 
 ``make_env(mission, subtask, reward="rrt", **options)`` reads only the mission's ``world`` (a
 ``WorldSpec``-like object with ``build(keep_clear=...)``) and ``robot`` (``RobotSpec``): the
 envs layer never imports ``workers``, so any object of the ``MissionLike`` shape will do. It is
 also registered as ``ltlnav/Nav-v0``: ``gymnasium.make("ltlnav/Nav-v0", mission=m,
-subtask=s, reward="rrt", ...)`` takes the same arguments. ``EnvOptions`` documents every
-option; ``build_course`` turns sub-tasks into the env's checked guides (``Leg``).
+subtask=s, reward="rrt", ...)`` takes the same arguments. ``envs.options.EnvOptions`` documents
+every option; ``build_course`` turns sub-tasks into the env's checked guides (``Leg``).
 """
 
 from __future__ import annotations
@@ -13,19 +13,20 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING, Any, Protocol
 
 import gymnasium as gym
 import numpy as np
 
+from envs.drivable import clearances, redraw_course
 from envs.handover import Pose, checked_starts, handover_poses
 from envs.nav_env import Leg, NavEnv
-from envs.observation import ObservationMode
-from envs.rewards import EnvConfigError, RegionTest, RewardConfig, reward_config, reward_mode
-from envs.robots import Robot, RobotConfigError, make_robot, robot_class
+from envs.options import EnvOptions, options_with
+from envs.rewards import EnvConfigError, RegionTest, reward_mode
+from envs.robots import Robot, RobotConfigError, make_robot, robot_class, robot_params
 from envs.robots.racecar import WHEEL_RADIUS, RacecarParams
 from envs.spec import RobotSpec
+from planner.drivable import thin
 from planner.guidance import Guide, ProgressTracker
 from planner.world import World
 
@@ -51,132 +52,6 @@ class MissionLike(Protocol):
 
     @property
     def robot(self) -> RobotSpec: ...
-
-
-@dataclass(frozen=True)
-class EnvOptions:
-    """Options of the navigation env; every default is chosen for training the ``rrt`` mode."""
-
-    max_steps: int | None = None
-    """Step limit of an episode (truncation). None: ``max(50, ceil(time_factor * L / (v dt)))``
-    with ``L`` the guide length (every leg for ``g-rrt``), ``v`` the robot's top speed
-    (``max_speed``; racecar: ``max_wheel_speed`` times the wheel radius) and ``dt`` its agent
-    step: ``time_factor`` times the time to follow the guide at full speed."""
-    time_factor: float = 3.0
-    """Multiple of the guide-following time that sets the default ``max_steps``."""
-    observation: ObservationMode = "guided"
-    """``"guided"``: state, progress and the next ``lookahead`` ball centres (plus rays);
-    ``"paper"``: the bare product state ``(s_t, i_t)`` of the paper (plus rays)."""
-    lookahead: int = 3
-    """How many next r-ball centres the ``"guided"`` observation holds (0: none)."""
-    lookahead_range: float | None = None
-    """Scale of the ball offsets (clipped beyond it), metres. None: ``2 r (lookahead + 1)``."""
-    rays: int = 0
-    """Number of lidar-like rays in the observation (0: none)."""
-    ray_range: float | None = None
-    """Maximum ray range in metres. None: an eighth of the world's diagonal."""
-    curriculum: float = 0.0
-    """Probability that an episode starts at a uniformly drawn r-ball of the guide (not the
-    last) with the progress index set to it. Evaluation must pass 0."""
-    start_noise: float = 0.0
-    """Radius (m) of a uniform perturbation of the start position; a perturbed start stays
-    collision free and in the same regions as the nominal one (100 draws, else no noise)."""
-    heading_noise: float = 0.0
-    """Half-width (rad) of a uniform perturbation of the start heading (pi: any heading)."""
-    handover: bool = True
-    """Real starts where the mission hands the robot over (``envs.handover``: each preceding
-    sub-task's guide entering its goal region, facing along it; the mission start with its
-    heading for the first sub-task); needs the plan. False, or without a plan: the start of
-    the sub-task's guide facing along it (the mission's start heading at the mission start)."""
-    stall_steps: int = 0
-    """End the episode after this many steps without a new r-ball (0: never)."""
-    stall_penalty: float | None = None
-    """Reward of a stall: None ends a stall as a truncation (value bootstrapped, no penalty);
-    a number ends it as a termination with that reward (a failure the critic learns)."""
-    dense_progress: bool = False
-    """Pay the ``rrt``/``g-rrt`` gain on every step as the decrease of the continuous
-    distance-to-go ``D_min`` of the next ball plus the distance to that ball's centre (a
-    potential, so a round trip earns nothing), not only on entering a new ball."""
-    min_forward: float | None = None
-    """Robots driven by (forward, turn) actions (unicycle, racecar) only: map the policy's
-    forward component from ``[-1, 1]`` onto ``[min_forward, 1]`` (e.g. 0.2: always creep
-    forward, no parking or reversing). None: the action goes to the robot unchanged."""
-    guide_feedforward: float | None = None
-    """Add this share of the full command toward the guide's carrot (``envs.feedforward``;
-    world-frame robots: to the whole action, (forward, turn) robots: to the turn) to the
-    policy's action, clipped to ``[-1, 1]``: the policy learns a correction to following the
-    guide. None: the action goes to the robot unchanged."""
-    r_ball: float | None = None
-    """Radius of the guide's r-balls. None: the plan's ``r_ball``, or the planner default
-    (a fortieth of the world's diagonal, ``eta / 2``) without a plan."""
-    rewards: RewardConfig = field(default_factory=RewardConfig)
-    """Reward constants over the mode's defaults (see ``envs.rewards``)."""
-
-    def __post_init__(self) -> None:
-        def need(ok: bool, name: str, rule: str) -> None:
-            if not ok:
-                raise EnvConfigError(f"options.{name}", f"{rule}, got {getattr(self, name)!r}")
-
-        def integer(name: str) -> bool:
-            value = getattr(self, name)
-            return isinstance(value, int | np.integer) and not isinstance(value, bool)
-
-        def number(name: str) -> bool:
-            value = getattr(self, name)
-            ok = isinstance(value, int | float | np.number) and not isinstance(value, bool)
-            return ok and math.isfinite(value)
-
-        need(self.max_steps is None or integer("max_steps"), "max_steps", "must be an integer")
-        need(self.max_steps is None or self.max_steps >= 1, "max_steps", "must be >= 1")
-        need(number("time_factor") and self.time_factor > 0, "time_factor", "must be > 0")
-        need(self.observation in ("guided", "paper"), "observation", "must be guided or paper")
-        need(integer("lookahead") and self.lookahead >= 0, "lookahead", "must be an integer >= 0")
-        need(integer("rays") and self.rays >= 0, "rays", "must be an integer >= 0")
-        for name in ("lookahead_range", "ray_range", "r_ball"):
-            value = getattr(self, name)
-            need(value is None or (number(name) and value > 0), name, "must be > 0")
-        need(number("curriculum") and 0 <= self.curriculum <= 1, "curriculum", "must be in [0, 1]")
-        need(number("start_noise") and self.start_noise >= 0, "start_noise", "must be >= 0")
-        need(
-            number("heading_noise") and 0 <= self.heading_noise <= math.pi,
-            "heading_noise",
-            "must be in [0, pi]",
-        )
-        need(integer("stall_steps") and self.stall_steps >= 0, "stall_steps", "must be >= 0")
-        need(isinstance(self.dense_progress, bool), "dense_progress", "must be true or false")
-        need(
-            self.stall_penalty is None or number("stall_penalty"), "stall_penalty", "must be finite"
-        )
-        need(
-            self.min_forward is None or (number("min_forward") and -1 <= self.min_forward < 1),
-            "min_forward",
-            "must be in [-1, 1)",
-        )
-        need(
-            self.guide_feedforward is None
-            or (number("guide_feedforward") and 0 < self.guide_feedforward <= 1),
-            "guide_feedforward",
-            "must be in (0, 1]",
-        )
-        need(isinstance(self.rewards, RewardConfig), "rewards", "must be a RewardConfig")
-
-    @classmethod
-    def field_names(cls) -> tuple[str, ...]:
-        """Every option name (the keyword arguments ``make_env`` accepts)."""
-        return tuple(f.name for f in fields(cls))
-
-
-def _options(options: EnvOptions | None, overrides: dict[str, Any]) -> EnvOptions:
-    base = options if options is not None else EnvOptions()
-    if not isinstance(base, EnvOptions):
-        raise EnvConfigError("options", f"expected EnvOptions, got {type(base).__name__}")
-    known = EnvOptions.field_names()
-    for key in overrides:
-        if key not in known:
-            raise EnvConfigError(key, f"unknown env option; known: {', '.join(known)}")
-    if "rewards" in overrides:
-        overrides = {**overrides, "rewards": reward_config(overrides["rewards"])}
-    return dataclasses.replace(base, **overrides) if overrides else base
 
 
 def make_env(
@@ -208,7 +83,7 @@ def make_env(
     plan, a start of the wrong dimension or in collision, and ``RobotConfigError`` (also a
     ``ValueError``) for an unknown robot model or a world the robot cannot move in.
     """
-    opts = _options(options, overrides)
+    opts = options_with(options, overrides)
     mode = reward_mode(reward, opts.rewards)
     spec = mission.robot
     model = robot_class(spec.model)
@@ -244,18 +119,7 @@ def make_env(
         subtasks = [_subtask(subtask, plan)]
     if plan is not None and plan.start.shape != (world.dim,):
         raise EnvConfigError("plan", f"the plan is {plan.start.shape[0]}D, the world {world.dim}D")
-    r_ball = opts.r_ball or (plan.r_ball if plan is not None else world.diagonal / 40.0)
-    legs = build_course(world, spec.radius, subtasks, r_ball)
-    heading = legs[0].headings[0]
-    if len(spec.start) > world.dim and np.allclose(subtasks[0].start, start):
-        heading = float(spec.start[world.dim])
-    real = [Pose(np.asarray(subtasks[0].start, dtype=float), heading)]
-    if plan is not None and opts.handover and not mode.whole_lasso:
-        k = next((i for i, s in enumerate(plan.subtasks) if s is subtasks[0]), None)
-        if k is not None:
-            facing = float(spec.start[world.dim]) if len(spec.start) > world.dim else heading
-            mission_start = Pose(start, facing)
-            real = handover_poses(world, plan.subtasks, k, mission_start)
+    legs, real = course(world, spec, subtasks, plan, opts, whole_lasso=mode.whole_lasso)
     if starts is not None:
         real = checked_starts(starts, world)
     own = robot is None
@@ -279,12 +143,73 @@ def make_env(
         raise
 
 
+def course(
+    world: World,
+    spec: RobotSpec,
+    subtasks: list[SubTask],
+    plan: MissionPlan | None,
+    opts: EnvOptions,
+    *,
+    whole_lasso: bool,
+) -> tuple[list[Leg], list[Pose]]:
+    """The legs an env drives through ``subtasks`` (one, or every sub-task of ``plan`` for the
+    whole lasso) and its real starts (``envs.handover``), the guides redrawn for a car under
+    ``opts.drivable_guide``."""
+    start = np.asarray(spec.position(), dtype=float)
+    r_ball = opts.r_ball or (plan.r_ball if plan is not None else world.diagonal / 40.0)
+    listed = plan.subtasks if plan is not None else []
+    chosen = next((i for i, s in enumerate(listed) if s is subtasks[0]), None)
+    pool = list(plan.subtasks) if plan is not None and chosen is not None else subtasks
+    given = float(spec.start[world.dim]) if len(spec.start) > world.dim else None
+    first = np.asarray(pool[0].start, dtype=float)
+    facing = heading_along(np.asarray(pool[0].path, dtype=float))
+    if given is not None and np.allclose(first, start):
+        facing = given
+    rho = _turning_radius(opts, spec)
+    if rho > 0:
+        planned = plan.clearance if plan is not None else spec.radius
+        steps = clearances(spec.radius, max(planned, spec.radius))
+        pool = redraw_course(world, pool, Pose(first, facing), rho, steps)
+        subtasks = pool if whole_lasso else [pool[chosen or 0]]
+    legs = build_course(
+        world, spec.radius, subtasks, r_ball, dense=rho > 0, window=opts.progress_window
+    )
+    heading = facing if subtasks[0] is pool[0] else legs[0].headings[0]
+    real = [Pose(np.asarray(subtasks[0].start, dtype=float), heading)]
+    if plan is not None and opts.handover and not whole_lasso and chosen is not None:
+        mission_start = Pose(start, given if given is not None else facing)
+        real = handover_poses(world, pool, chosen, mission_start)
+    return legs, real
+
+
+def subtask_guides(
+    mission: MissionLike, plan: MissionPlan, options: EnvOptions, world: World | None = None
+) -> list[Guide]:
+    """The guide each sub-task's env follows under ``options``: what its policy was trained on
+    (the plan's polyline, or the redrawn path of ``drivable_guide``)."""
+    spec = mission.robot
+    if world is None:
+        world = mission.world.build(keep_clear=[spec.position()])
+    return [
+        course(world, spec, [sub], plan, options, whole_lasso=False)[0][0].guide
+        for sub in plan.subtasks
+    ]
+
+
 def build_course(
-    world: World, radius: float, subtasks: Sequence[SubTask], r_ball: float
+    world: World,
+    radius: float,
+    subtasks: Sequence[SubTask],
+    r_ball: float,
+    *,
+    dense: bool = False,
+    window: int | None = None,
 ) -> list[Leg]:
     """One ``Leg`` (guide of ``r_ball`` balls, tracker, goal test) per sub-task, checked
     against ``world`` for a robot of ``radius``: points of the world's dimension, known goal
-    regions, and a first start inside the bounds and collision free."""
+    regions, and a first start inside the bounds and collision free. ``dense`` paths (redrawn
+    by ``envs.drivable``) are thinned to balls ``2 r_ball`` apart along them; ``window`` is the
+    trackers' progress window."""
     d = world.dim
     guides: list[Guide] = []
     for k, sub in enumerate(subtasks):
@@ -301,7 +226,7 @@ def build_course(
             raise EnvConfigError(
                 "subtask.goal", f"sub-task {k}: no region {sub.goal!r} (known: {known})"
             )
-        guides.append(Guide.from_path(path, r_ball))
+        guides.append(Guide.from_path(thin(path, 2.0 * r_ball) if dense else path, r_ball))
     if not subtasks:
         raise EnvConfigError("subtask", "no sub-task to drive")
     start = np.asarray(subtasks[0].start, dtype=float)
@@ -317,7 +242,7 @@ def build_course(
     for k, (sub, guide) in enumerate(zip(subtasks, guides, strict=True)):
         goal = RegionTest(world.regions[sub.goal]) if sub.goal else None
         headings = [heading_along(guide.centers[i:]) for i in range(guide.num_balls)]
-        tracker = ProgressTracker(guide)
+        tracker = ProgressTracker(guide, window=window)
         legs.append(Leg(sub, guide, tracker, offset, sum(lengths[k + 1 :]), goal, headings))
         offset += guide.num_balls
     return legs
@@ -353,6 +278,19 @@ def split_subtask(subtask: SubTask, max_length: float) -> list[SubTask]:
             )
         )
     return pieces
+
+
+def _turning_radius(options: EnvOptions, spec: RobotSpec) -> float:
+    """Turning radius of the drivable guides (0: the plan's polylines)."""
+    if options.drivable_guide is None:
+        return 0.0
+    tightest = robot_params(spec.model, spec.params).min_turning_radius()
+    if tightest <= 0:
+        raise EnvConfigError(
+            "options.drivable_guide",
+            f"only for robots with a minimum turning radius (racecar), not a {spec.model}",
+        )
+    return options.drivable_guide * tightest
 
 
 def heading_along(path: np.ndarray) -> float:

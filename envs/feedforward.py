@@ -10,6 +10,12 @@ or more) to the turn component. Sums are clipped to ``[-1, 1]``. Following the g
 what a zero action does; the policy learns the correction around boxes and into the goal
 (residual policy learning, Silver et al. 2018; Johannink et al. 2019), instead of first having
 to discover motion at all.
+
+For robots with a minimum turning radius (racecar) ``EnvOptions.feedforward_law = "pursuit"``
+replaces that turn by pure pursuit (Coulter 1992): the target is the point ``PURSUIT_LOOKAHEAD``
+turning radii along the guide past the robot's projection on it, and the turn command is the
+curvature of the arc through it in units of the tightest curvature. On a guide the car can
+drive (``EnvOptions.drivable_guide``) this tracks the loops and curves the heading law cuts.
 """
 
 from __future__ import annotations
@@ -23,6 +29,10 @@ from envs.robots.base import wrap_angle
 
 AHEAD = 2
 """Balls past the progress index that the carrot sits (the ``follower`` of the tests)."""
+
+PURSUIT_LOOKAHEAD = 1.3
+"""Pure-pursuit lookahead in minimum turning radii (0.8 m for the racecar, whose drivable
+guides turn on 1.45 radii: a scripted pursuit with it drove all four car sub-tasks)."""
 
 WORLD_FRAME_ROBOTS = frozenset({"point", "quadrotor"})
 """Robots whose action is a world-frame command, one component per workspace axis."""
@@ -51,3 +61,50 @@ def steering_toward(heading: float, direction: np.ndarray) -> float:
         return 0.0
     error = wrap_angle(math.atan2(float(direction[1]), float(direction[0])) - heading)
     return max(-1.0, min(1.0, error / (math.pi / 2)))
+
+
+def pursuit_target(
+    centres: np.ndarray,
+    dist_to_go: np.ndarray,
+    index: int,
+    x: Sequence[float] | np.ndarray,
+    ahead: float,
+) -> np.ndarray:
+    """The point ``ahead`` metres along the guide polyline through ``centres`` past the
+    projection of ``x`` on its segments around ball ``index`` (-1: none reached)."""
+    n = len(centres)
+    if n == 1:
+        return np.asarray(centres[0], dtype=float)
+    lo = max(index - 1, 0)
+    hi = min(max(index, 0) + 4, n - 1)
+    a, b = centres[lo:hi], centres[lo + 1 : hi + 1]
+    seg = b - a
+    length_sq = np.maximum(np.einsum("ij,ij->i", seg, seg), 1e-18)
+    point = np.asarray(x, dtype=float)
+    t = np.clip(np.einsum("ij,ij->i", point - a, seg) / length_sq, 0.0, 1.0)
+    gap = a + t[:, None] * seg - point
+    j = int(np.argmin(np.einsum("ij,ij->i", gap, gap)))
+    togo = float(dist_to_go[lo + j]) - t[j] * math.sqrt(length_sq[j]) - ahead
+    k = int(np.searchsorted(-dist_to_go, -togo, side="right"))
+    if k >= n:
+        return np.asarray(centres[-1], dtype=float)
+    k = max(k, 1)
+    span = float(dist_to_go[k - 1] - dist_to_go[k])
+    share = (float(dist_to_go[k - 1]) - togo) / span if span > 0 else 1.0
+    return np.asarray(centres[k - 1] + min(max(share, 0.0), 1.0) * (centres[k] - centres[k - 1]))
+
+
+def pursuit_turn(
+    heading: float, x: Sequence[float] | np.ndarray, target: np.ndarray, turning_radius: float
+) -> float:
+    """Turn command in ``[-1, 1]`` of the arc from ``x`` facing ``heading`` through
+    ``target``: its curvature times ``turning_radius`` (1 at the tightest turn); a full turn
+    toward a target behind."""
+    dx, dy = float(target[0] - x[0]), float(target[1] - x[1])
+    distance = math.hypot(dx, dy)
+    if distance < 1e-9:
+        return 0.0
+    alpha = wrap_angle(math.atan2(dy, dx) - heading)
+    if math.cos(alpha) < 0.0:
+        return 1.0 if alpha > 0 else -1.0
+    return max(-1.0, min(1.0, 2.0 * math.sin(alpha) / distance * turning_radius))

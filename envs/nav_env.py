@@ -9,7 +9,7 @@ progress index set to match) and ends when
 * the judge of the reward mode says the goal is reached (the goal region contains the robot's
   point; ``tl``/``g-rrt``: the automaton made the sub-task's transition(s)): terminated,
   ``R++``, ``is_success`` True; an automaton violation ends like a crash;
-* optionally, no new r-ball was reached for ``stall_steps`` steps (see ``envs.factory.EnvOptions``);
+* optionally, no new r-ball was reached for ``stall_steps`` steps (see ``envs.options.EnvOptions``);
 * the step limit is hit: truncated, ``is_success`` False.
 
 The progress index ``i_t`` and ``D_min`` come from ``planner.guidance.ProgressTracker``; the
@@ -38,8 +38,11 @@ import numpy as np
 from gymnasium import spaces
 
 from envs.feedforward import (
+    PURSUIT_LOOKAHEAD,
     WORLD_FRAME_ROBOTS,
     carrot_direction,
+    pursuit_target,
+    pursuit_turn,
     steering_toward,
     with_feedforward,
 )
@@ -64,7 +67,7 @@ from planner.guidance import Guide, ProgressTracker
 from planner.world import World
 
 if TYPE_CHECKING:
-    from envs.factory import EnvOptions
+    from envs.options import EnvOptions
     from planner.decompose import SubTask
 
 
@@ -167,6 +170,14 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
                 "options.guide_feedforward",
                 f"only for {', '.join(sorted(supported))} robots, not a {robot.name}",
             )
+        self._pursuit = 0.0
+        if options.feedforward_law == "pursuit":
+            self._pursuit = robot.params.min_turning_radius()
+            if self._pursuit <= 0 or robot.name not in HEADING_FEATURES:
+                raise EnvConfigError(
+                    "options.feedforward_law",
+                    f"pursuit is for robots with a minimum turning radius, not a {robot.name}",
+                )
         self._leg = first
         self._leg_k = 0
         self._t = 0
@@ -241,7 +252,7 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         if self._dense:
             self._potential = self._continuous_togo(x)
         obs = self._obs.build(self.robot.observation(), x, self._index)
-        i = self._leg.guide.locate(x)
+        i = self._leg.tracker.locate(x, ball)
         d = float(self._leg.guide.dist_to_go[i]) if i >= 0 else math.inf
         return obs, self._info(d, False, self.robot.collided(), False, False)
 
@@ -255,8 +266,7 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         """Track leg ``k`` from point ``x``; ``ball`` >= 0 is a curriculum start ball."""
         leg = self.legs[k]
         self._leg, self._leg_k = leg, k
-        located = leg.guide.locate(x)
-        index = max(ball, located)
+        index = max(ball, leg.tracker.locate(x, ball))
         if index >= 0:
             leg.tracker.reset(0, start_index=index)
             self._togo = leg.rest + float(leg.guide.dist_to_go[index])
@@ -359,10 +369,16 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         gain = self._feedforward
         if gain is not None:
             local = self._index - self._leg.offset
-            toward = carrot_direction(self._leg.guide.centers, local, self.robot.position())
-            if self.robot.name in WORLD_FRAME_ROBOTS:
-                return with_feedforward(a, gain, toward)
-            turn = steering_toward(self.robot.heading(), toward)
+            guide, x = self._leg.guide, self.robot.position()
+            if self._pursuit:
+                ahead = PURSUIT_LOOKAHEAD * self._pursuit
+                target = pursuit_target(guide.centers, guide.dist_to_go, local, x, ahead)
+                turn = pursuit_turn(self.robot.heading(), x, target, self._pursuit)
+            else:
+                toward = carrot_direction(guide.centers, local, x)
+                if self.robot.name in WORLD_FRAME_ROBOTS:
+                    return with_feedforward(a, gain, toward)
+                turn = steering_toward(self.robot.heading(), toward)
             a[1] = min(1.0, max(-1.0, a[1] + gain * turn))
         if self._forward is not None:
             low = self._forward

@@ -21,9 +21,10 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from envs.factory import EnvOptions, make_env
+from envs.factory import make_env
 from envs.handover import Pose
 from envs.nav_env import NavEnv
+from envs.options import EnvOptions
 from envs.rewards import RegionLabeler
 from envs.robots import Robot, make_robot
 from planner.plan import MissionPlan

@@ -61,6 +61,11 @@ class RobotParams:
     def check(self) -> None:
         """Range checks of the model; the base accepts every finite value."""
 
+    def min_turning_radius(self) -> float:
+        """The tightest turn of the robot's workspace point in metres (0: it can turn on the
+        spot, or steers freely in every direction)."""
+        return 0.0
+
     def require(self, ok: bool, name: str, message: str) -> None:
         """Raise ``RobotConfigError`` on ``params.<name>`` unless ``ok``."""
         if not ok:

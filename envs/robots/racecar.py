@@ -86,6 +86,12 @@ class RacecarParams(RobotParams):
         self.require(self.substeps >= 1, "substeps", "must be an integer >= 1")
         self.require(self.solver_iterations >= 1, "solver_iterations", "must be an integer >= 1")
 
+    def min_turning_radius(self) -> float:
+        """The kinematic turning radius of the middle of the car at full steering (about
+        0.62 m by default; the simulated car skids to about 0.72-0.81 m at 0.2-1 m/s)."""
+        rear_axle = WHEELBASE / math.tan(self.max_steering)
+        return math.hypot(rear_axle, CENTER_OFFSET)
+
 
 def shape_ccw(points: list[list[float]]) -> bool:
     """True if the polygon's vertices run counter-clockwise."""

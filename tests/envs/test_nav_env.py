@@ -18,8 +18,9 @@ import numpy as np
 import pytest
 from stable_baselines3.common.env_checker import check_env
 
-from envs.factory import ENV_ID, EnvOptions, make_env, split_subtask
+from envs.factory import ENV_ID, make_env, split_subtask
 from envs.nav_env import NavEnv
+from envs.options import EnvOptions
 from envs.rays import RayCaster
 from envs.rewards import REWARD_MODES, EnvConfigError
 from envs.robots import RobotConfigError
@@ -551,7 +552,7 @@ def test_options_dataclass_documents_every_field() -> None:
     import ast
     import inspect
 
-    import envs.factory as module
+    import envs.options as module
 
     tree = ast.parse(inspect.getsource(module))
     cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "EnvOptions")

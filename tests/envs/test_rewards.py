@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from envs.factory import EnvOptions, make_env
+from envs.factory import make_env
+from envs.options import EnvOptions
 from envs.rewards import (
     REWARD_MODES,
     AutomatonTracker,

@@ -1,0 +1,89 @@
+"""Drivable guides (``EnvOptions.drivable_guide``): a car's sub-task guides redrawn as paths it
+can follow.
+
+:func:`planner.drivable.drivable_path` redraws one polyline from one pose. Here a mission's
+sub-tasks are redrawn in the order a rollout drives them (the prefix, then the suffix once):
+the first from the mission start, every other one from where the previous *redrawn* guide
+enters its goal region, facing along it (``envs.handover.arrival_pose``), which is also where
+``envs.handover`` starts it. So a U-turn at a hand-over becomes a loop the car can drive. Each
+guide is redrawn at the largest clearance that fits of :func:`clearances`; a sub-task that fits
+none keeps its polyline (the env still trains, on the guide a point robot would follow).
+
+The redrawn paths are dense (``planner.drivable.STEP`` apart); ``envs.factory.build_course``
+thins them to the guide's ball spacing. Redrawing every sub-task costs about 0.1 s each, and
+every sub-task env of a mission redraws the same course, so results are cached per world.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections import OrderedDict
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from envs.handover import Pose, arrival_pose
+from planner.drivable import drivable_path
+from planner.dubins import Pose2
+from planner.world import World
+
+if TYPE_CHECKING:
+    from planner.decompose import SubTask
+
+CACHE_SIZE = 16
+"""Redrawn courses kept (each entry holds its world, so the world's id stays unique)."""
+
+_cache: OrderedDict[tuple[Any, ...], tuple[World, list[SubTask]]] = OrderedDict()
+
+
+def clearances(radius: float, planned: float) -> list[float]:
+    """Clearances to redraw at, largest first: the plan's (radius plus margin), halfway to the
+    robot's radius, the radius."""
+    return sorted({planned, 0.5 * (planned + radius), radius}, reverse=True)
+
+
+def rollout_order(subtasks: Sequence[SubTask]) -> list[int]:
+    """Indices of ``subtasks`` in the order a rollout first drives them: prefix, then suffix."""
+    prefix = [i for i, s in enumerate(subtasks) if s.phase == "prefix"]
+    return prefix + [i for i, s in enumerate(subtasks) if s.phase != "prefix"]
+
+
+def redraw_course(
+    world: World,
+    subtasks: Sequence[SubTask],
+    start: Pose,
+    rho: float,
+    clearance_steps: Sequence[float],
+) -> list[SubTask]:
+    """``subtasks`` (same order and indices) with their paths redrawn as drivable paths of
+    turning radius ``rho`` (see the module docstring); ``start`` is the mission start pose."""
+    key = (
+        id(world),
+        round(rho, 9),
+        tuple(round(c, 9) for c in clearance_steps),
+        tuple(np.round(start.position, 9).tolist()),
+        round(start.heading, 9),
+        tuple((s.phase, s.goal, np.asarray(s.path, dtype=float).tobytes()) for s in subtasks),
+    )
+    hit = _cache.get(key)
+    if hit is not None:
+        _cache.move_to_end(key)
+        return list(hit[1])
+    drawn: list[SubTask] = list(subtasks)
+    pose = start
+    for k in rollout_order(subtasks):
+        sub = subtasks[k]
+        path = None
+        for clearance in clearance_steps:
+            origin = Pose2(float(pose.position[0]), float(pose.position[1]), pose.heading)
+            path = drivable_path(world, np.asarray(sub.path, dtype=float), origin, rho, clearance)
+            if path is not None:
+                break
+        if path is not None:
+            drawn[k] = dataclasses.replace(sub, start=path[0].copy(), path=path)
+        pose = arrival_pose(world, drawn[k])
+    _cache[key] = (world, drawn)
+    while len(_cache) > CACHE_SIZE:
+        _cache.popitem(last=False)
+    return list(drawn)

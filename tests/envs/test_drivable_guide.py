@@ -1,0 +1,164 @@
+"""Drivable guides: a racecar's sub-task guides redrawn from its hand-over poses.
+
+The mission drives east down a lane into region ``a``, then back west to ``b``: the second
+sub-task starts facing into ``a`` with its polyline leaving the way the car came, a U-turn the
+racecar (turning radius 0.62 m) can only make on a loop.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+
+import numpy as np
+import pytest
+
+from envs.drivable import clearances, redraw_course
+from envs.factory import make_env
+from envs.feedforward import pursuit_target, pursuit_turn
+from envs.handover import Pose, arrival_pose
+from envs.options import EnvOptions
+from envs.rewards import EnvConfigError
+from envs.robots import robot_params
+from envs.spec import RobotSpec
+from planner.options import PlannerSpec
+from planner.plan import MissionPlan, plan_mission
+from planner.shapes import Ball, Box
+from planner.world import World
+from tests.envs.test_nav_env import Mission, Prebuilt
+from tests.envs.test_scripted import CONTROLLERS, Pursuit
+
+RADIUS = 0.27
+FACTOR = 1.45
+START = [1.5, 1.5, 0.0]
+
+
+@cache
+def lane() -> tuple[World, MissionPlan]:
+    world = World(
+        np.array([[0.0, 12.0], [0.0, 5.0]]),
+        [Box(np.array([4.0, 3.2]), np.array([8.0, 5.0]))],
+        {"a": Ball(np.array([10.5, 2.0]), 0.8), "b": Ball(np.array([1.5, 3.8]), 0.6)},
+    )
+    options = PlannerSpec(seed=0, refine_seconds=0.2, time_limit=20.0)
+    plan = plan_mission(world, "<>(a && <>b)", np.array(START[:2]), 0.4, options)
+    return world, plan
+
+
+def racecar_mission(model: str = "racecar") -> Mission:
+    world, _ = lane()
+    return Mission(Prebuilt(world), RobotSpec(model=model, start=START, radius=RADIUS))
+
+
+def course() -> list:  # type: ignore[type-arg]
+    world, plan = lane()
+    rho = FACTOR * robot_params("racecar").min_turning_radius()
+    steps = clearances(RADIUS, plan.clearance)
+    return redraw_course(world, plan.subtasks, Pose(np.array(START[:2]), 0.0), rho, steps)
+
+
+def test_the_u_turn_guide_starts_at_the_hand_over_and_loops() -> None:
+    world, plan = lane()
+    assert [s.goal for s in plan.subtasks] == ["a", "b"]
+    drawn = course()
+    handover = arrival_pose(world, drawn[0])
+    env = make_env(racecar_mission(), 1, "rrt", world=world, plan=plan, drivable_guide=FACTOR)
+    try:
+        (start,) = env.starts
+        np.testing.assert_allclose(start.position, handover.position)
+        assert start.heading == pytest.approx(handover.heading)
+        guide = env.legs[0].guide
+        np.testing.assert_allclose(guide.centers[0], handover.position)
+        gaps = np.linalg.norm(np.diff(guide.centers, axis=0), axis=1)
+        assert gaps.max() <= 2 * guide.r + 1e-9
+        polyline = float(np.linalg.norm(np.diff(plan.subtasks[1].path, axis=0), axis=1).sum())
+        assert guide.length > polyline + 1.0  # the loop
+        assert not world.in_collision(drawn[1].path, RADIUS).any()
+    finally:
+        env.close()
+
+
+def test_a_racecar_following_the_redrawn_guide_makes_the_u_turn() -> None:
+    world, plan = lane()
+    path = course()[1].path
+    env = make_env(racecar_mission(), 1, "rrt", world=world, plan=plan, drivable_guide=FACTOR)
+    try:
+        for seed in range(3):
+            env.reset(seed=seed)
+            pursuit, info = Pursuit(path, 0.6), {}
+            for _ in range(env.max_steps):
+                target = pursuit.target(env.robot.position())
+                _, _, done, cut, info = env.step(CONTROLLERS["racecar"](env.robot, target))
+                if done or cut:
+                    break
+            assert info["is_success"], info
+    finally:
+        env.close()
+
+
+def test_g_rrt_chains_the_redrawn_legs() -> None:
+    world, plan = lane()
+    env = make_env(racecar_mission(), None, "g-rrt", world=world, plan=plan, drivable_guide=FACTOR)
+    try:
+        first, second = env.legs
+        np.testing.assert_allclose(first.guide.centers[0], START[:2])
+        arrival = arrival_pose(world, course()[0]).position
+        np.testing.assert_allclose(second.guide.centers[0], arrival)
+    finally:
+        env.close()
+
+
+def test_a_u_turn_with_no_room_for_the_loop_keeps_its_polyline() -> None:
+    world, plan = lane()
+    wide = redraw_course(world, plan.subtasks, Pose(np.array(START[:2]), 0.0), 20.0, [0.4])
+    np.testing.assert_array_equal(wide[1].path, plan.subtasks[1].path)
+    assert redraw_course(world, plan.subtasks, Pose(np.array(START[:2]), 0.0), 20.0, [0.4]) == wide
+
+
+def test_only_robots_with_a_turning_radius_take_drivable_guides() -> None:
+    world, plan = lane()
+    with pytest.raises(EnvConfigError, match="minimum turning radius") as err:
+        make_env(racecar_mission("unicycle"), 1, world=world, plan=plan, drivable_guide=FACTOR)
+    assert err.value.field == "options.drivable_guide"
+    with pytest.raises(EnvConfigError, match=">= 1"):
+        EnvOptions(drivable_guide=0.5)
+
+
+def test_pursuit_target_runs_ahead_of_the_projection_on_the_guide() -> None:
+    centres = np.array([[float(i), 0.0] for i in range(6)])
+    togo = 5.0 - centres[:, 0]
+    target = pursuit_target(centres, togo, 2, [2.3, 0.5], 1.0)
+    np.testing.assert_allclose(target, [3.3, 0.0])
+    np.testing.assert_allclose(pursuit_target(centres, togo, -1, [-1.0, 0.0], 0.5), [0.5, 0.0])
+    np.testing.assert_allclose(pursuit_target(centres, togo, 5, [4.8, 0.0], 2.0), [5.0, 0.0])
+
+
+def test_pursuit_turn_is_the_arc_curvature_in_units_of_the_tightest() -> None:
+    radius, theta = 0.6, 0.8
+    on_tightest_arc = np.array([radius * np.sin(theta), radius * (1 - np.cos(theta))])
+    assert pursuit_turn(0.0, [0.0, 0.0], on_tightest_arc, radius) == pytest.approx(1.0)
+    wider = np.array([2 * radius * np.sin(theta), -2 * radius * (1 - np.cos(theta))])
+    assert pursuit_turn(0.0, [0.0, 0.0], wider, radius) == pytest.approx(-0.5)
+    assert pursuit_turn(0.0, [0.0, 0.0], np.array([2.0, 0.0]), radius) == 0.0
+    assert pursuit_turn(0.0, [0.0, 0.0], np.array([-1.0, 0.1]), radius) == 1.0
+
+
+def test_the_pursuit_feedforward_alone_makes_the_u_turn() -> None:
+    world, plan = lane()
+    options = {"drivable_guide": FACTOR, "guide_feedforward": 1.0, "min_forward": 0.2}
+    env = make_env(
+        racecar_mission(), 1, "rrt", world=world, plan=plan, feedforward_law="pursuit", **options
+    )
+    try:
+        for seed in range(3):
+            env.reset(seed=seed)
+            info: dict[str, object] = {}
+            for _ in range(env.max_steps):
+                _, _, done, cut, info = env.step(np.zeros(2, dtype=np.float32))
+                if done or cut:
+                    break
+            assert info["is_success"], info
+    finally:
+        env.close()
+    with pytest.raises(EnvConfigError, match="minimum turning radius") as err:
+        make_env(racecar_mission("unicycle"), 1, world=world, plan=plan, feedforward_law="pursuit")
+    assert err.value.field == "options.feedforward_law"
