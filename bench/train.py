@@ -54,8 +54,6 @@ from workers.mission import MissionSpec, parse_mission  # noqa: E402
 from workers.training_spec import SubtaskJob  # noqa: E402
 
 METHODS = ("rrt", "rrt-paper", "ned", "tl", "g-rrt")
-ROBOT_VARIANTS = {"racecar-phi2-fin": ("car-phi2-fin", "racecar")}
-"""Missions made from an example by swapping the robot model (name -> (example, model))."""
 
 
 @dataclass(frozen=True)
@@ -132,12 +130,8 @@ on two cores)."""
 
 
 def load_mission(name: str, row: Row) -> MissionSpec:
-    """The named example (or robot variant) with the row's method, seed and budget."""
-    example, model = ROBOT_VARIANTS.get(name, (name, None))
-    document = yaml.safe_load((ROOT / "examples" / f"{example}.yaml").read_text())
-    if model is not None:
-        document["name"] = name
-        document["robot"]["model"] = model
+    """The named example with the row's method, seed and budget."""
+    document = yaml.safe_load((ROOT / "examples" / f"{name}.yaml").read_text())
     training = document.setdefault("training", {})
     training.update(dict(row.training))
     training["seed"] = row.seed

@@ -19,6 +19,7 @@ SEQUENCE_12 += "g11 && <>g12" + ")" * 11
 TASKS = {
     "car-phi2-fin": "[]!obstacle && <>(g1 && <>(g2 && <>(g3 && <>ginit)))",
     "car-phi2-inf": "[]!obstacle && []<>(g1 && <>(g2 && <>g3))",
+    "racecar-phi2-fin": "[]!obstacle && <>(g1 && <>(g2 && <>(g3 && <>ginit)))",
     "quad-phi1-fin": "[]!obstacle && <>g1 && <>g2 && <>g3",
     "quad-phi1-inf": "[]!obstacle && []<>g1 && []<>g2 && []<>g3",
     "quad-phi3-fin": SEQUENCE_12,
@@ -26,7 +27,7 @@ TASKS = {
     "tlrrt-case1": "<>l1 && []<>(l2 && <>l3) && (!l3 U l4) && []!l5",
     "tlrrt-gf3": "[]<>l1 && []<>l2 && []<>l3",
 }
-WORLDS = {"car": (2, 50, 4), "quad": (3, 25, 12), "tlrrt": (2, 2, 6)}
+WORLDS = {"car": (2, 50, 4), "racecar": (2, 50, 4), "quad": (3, 25, 12), "tlrrt": (2, 2, 6)}
 """Per family: dimension, obstacles, regions."""
 
 
