@@ -27,8 +27,8 @@ import matplotlib.pyplot as plt
 from matplotlib.patches import Circle, Rectangle
 from matplotlib.patches import Polygon as PolygonPatch
 
-from envs.factory import EnvOptions
-from planner.guidance import Guide
+from envs.factory import subtask_guides
+from envs.options import EnvOptions
 from planner.plan import MissionPlan
 from planner.plot import plot_plan
 from planner.serialize import plan_to_dict
@@ -73,6 +73,8 @@ def manifest_for(
 ) -> Manifest:
     """The manifest of a bundle of ``results`` (one per sub-task, in order)."""
     training = mission.training
+    options = training.eval_env_options(mission.robot.model)
+    guides = subtask_guides(mission, plan, options)
     kwargs = training.policy_kwargs()
     if training.hyperparams.get("use_sde"):
         kwargs["use_sde"] = True
@@ -83,8 +85,8 @@ def manifest_for(
             goal=sub.goal,
             start=sub.start.tolist(),
             path=sub.path.tolist(),
-            r_ball=plan.r_ball,
-            guide_centers=Guide.from_path(sub.path, plan.r_ball).centers.tolist(),
+            r_ball=guide.r,
+            guide_centers=guide.centers.tolist(),
             model=f"models/subtask_{sub.index}.zip",
             algorithm=training.algorithm,
             policy_kwargs=kwargs,
@@ -96,7 +98,7 @@ def manifest_for(
             curve=result.curve,
             evaluation=result.final,
         )
-        for sub, result, seed in zip(plan.subtasks, results, seeds, strict=True)
+        for sub, guide, result, seed in zip(plan.subtasks, guides, results, seeds, strict=True)
     ]
     lasso = plan.lasso
     return Manifest(
@@ -119,7 +121,7 @@ def manifest_for(
         subtasks=entries,
         cycles=training.cycles,
         mission_evaluation=evaluation.to_json() if evaluation is not None else None,
-        eval_env=eval_env_document(training.eval_env_options(mission.robot.model)),
+        eval_env=eval_env_document(options),
         files=list(files),
     )
 

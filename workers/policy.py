@@ -31,7 +31,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 from stable_baselines3 import DDPG, PPO, SAC, TD3
 from stable_baselines3.common.policies import BasePolicy
 
-from envs.factory import EnvOptions
+from envs.options import EnvOptions
 from envs.rewards import EnvConfigError
 from planner.errors import LtlnavError
 from planner.plan import MissionPlan
@@ -64,8 +64,11 @@ class SubtaskEntry(BaseModel):
     goal: str
     start: list[float]
     path: list[list[float]]
+    """The plan's polyline of the sub-task."""
     r_ball: float
     guide_centers: list[list[float]]
+    """Centres of the r-balls of the guide the policy followed (the polyline's, or the redrawn
+    path's under ``eval_env.drivable_guide``)."""
     model: str
     algorithm: Literal["sac", "td3", "ddpg", "ppo"]
     policy_kwargs: dict[str, Any]

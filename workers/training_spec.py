@@ -4,7 +4,7 @@
 and its constants, env options and stable-baselines3 hyperparameters under their RL-Zoo names
 (checked per algorithm: an unknown key is an error naming it and listing the valid ones).
 Reward and env defaults are not repeated here: an empty ``reward.constants`` or ``env`` takes
-``envs.rewards``' and ``envs.factory.EnvOptions``' own defaults.
+``envs.rewards``' and ``envs.options.EnvOptions``' own defaults.
 
 ``SubtaskJob`` is everything one training job needs, as plain JSON (the service sends it through
 Celery): the mission document, the plan document (``plan_to_dict``) so that every job trains
@@ -25,8 +25,8 @@ from pydantic import (
     model_validator,
 )
 
-from envs.factory import EnvOptions
 from envs.observation import HEADING_FEATURES
+from envs.options import EnvOptions
 from envs.rewards import REWARD_MODES, EnvConfigError, RewardConfig, reward_mode
 from planner.spec import raise_problems
 
@@ -114,7 +114,7 @@ leaving the guide costs what a crash costs and the off-guide wandering never fil
 buffer. Evaluations never stop a stalled episode."""
 
 GUIDED_MODES = frozenset({"rrt", "g-rrt"})
-"""Reward modes that take ``STALL_ENV_DEFAULTS`` and ``FEEDFORWARD_ENV_DEFAULTS`` (both read
+"""Reward modes that take ``STALL_ENV_DEFAULTS`` and ``GUIDE_ENV_DEFAULTS`` (both read
 the guide): ours. ``rrt-paper`` is the paper's method as published; ``ned`` and ``tl`` must not
 learn from the guide."""
 
@@ -124,15 +124,30 @@ changes what an action means): the forward command maps onto [0.2, 1] of the top
 removes the parking optimum; without it every measured agent learned to stand still."""
 
 
-FEEDFORWARD_ENV_DEFAULTS: dict[str, dict[str, Any]] = {"quadrotor": {"guide_feedforward": 1.0}}
-"""Defaults per robot for ``GUIDED_MODES``, in training and evaluation alike (it changes what an
-action means): the full velocity command toward the guide's carrot is added to the policy's
-action (``envs.feedforward``), which then learns the correction. Measured
-(``bench/LEARNING.md``): quadrotor phi_1,inf sub-task 0 from 0 % at 40k steps to 100 % at 5k;
-the feed-forward alone (a zero policy) crashes there. Not the unicycle: it trained the car's
-U-turn sub-task 2 of seed 4 (0 % at 80k -> 100 % at 25k) but held sub-task 3 at about 50 % on
-two seeds up to 120k (a full turn command leaves the policy no authority to turn the other
-way), where the defaults reach the target."""
+GUIDE_ENV_DEFAULTS: dict[str, dict[str, Any]] = {
+    "quadrotor": {"guide_feedforward": 1.0},
+    "racecar": {
+        "drivable_guide": 1.45,
+        "guide_feedforward": 1.0,
+        "feedforward_law": "pursuit",
+        "progress_window": 2,
+    },
+}
+"""Defaults per robot for ``GUIDED_MODES``, in training and evaluation alike (they change what
+an action means and which guide the reward follows). Measured in ``bench/LEARNING.md``:
+
+* quadrotor: the full velocity command toward the guide's carrot is added to the policy's
+  action (``envs.feedforward``), which then learns the correction: phi_1,inf sub-task 0 from
+  0 % at 40k steps to 100 % at 5k; the feed-forward alone (a zero policy) crashes there.
+* racecar: every guide is redrawn as Dubins arcs of 1.45 times its turning radius (0.9 m)
+  from the hand-over pose (``envs.drivable``), so the U-turns at g2 and g3 become loops it can
+  drive; the feed-forward turn is pure pursuit along that guide; a ball counts only two past
+  the progress index, so the start of a loop is not taken for its end. Without them the
+  U-turn sub-tasks stayed at 0-69 % up to 150k steps.
+
+Not the unicycle: the carrot turn trained the car's U-turn sub-task 2 of seed 4 (0 % at 80k ->
+100 % at 25k) but held sub-task 3 at about 50 % on two seeds up to 120k (a full turn command
+leaves the policy no authority to turn the other way), where the defaults reach the target."""
 
 
 class RewardSpec(BaseModel):
@@ -235,7 +250,7 @@ class TrainingSpec(BaseModel):
     reward: RewardSpec = Field(default_factory=lambda: RewardSpec(), description="Reward.")
     env: dict[str, Any] = Field(
         default_factory=dict,
-        description="envs.factory.EnvOptions fields (max_steps, observation, lookahead, rays, "
+        description="envs.options.EnvOptions fields (max_steps, observation, lookahead, rays, "
         "curriculum, stall_steps, min_forward, ...); unset ones take EnvOptions' defaults.",
     )
     hyperparams: dict[str, Any] = Field(
@@ -305,7 +320,7 @@ class TrainingSpec(BaseModel):
         if model in HEADING_FEATURES:
             defaults.update(HEADING_ENV_DEFAULTS)
         if self.reward.mode in GUIDED_MODES:
-            defaults.update(FEEDFORWARD_ENV_DEFAULTS.get(model, {}))
+            defaults.update(GUIDE_ENV_DEFAULTS.get(model, {}))
             crash = reward_mode(self.reward.mode, self.reward.config()).crash
             defaults.update(STALL_ENV_DEFAULTS, stall_penalty=crash)
         return {**defaults, **self.env}

@@ -151,10 +151,13 @@ def test_measured_training_defaults_apply_by_robot_and_yield_to_the_mission() ->
     quad = training.env_options("quadrotor")
     assert quad.guide_feedforward == 1.0
     assert point.guide_feedforward is None and car.guide_feedforward is None
-    assert training.env_options("racecar").guide_feedforward is None
+    racecar = training.eval_env_options("racecar")  # evaluated as trained: same meaning
+    assert (racecar.drivable_guide, racecar.guide_feedforward) == (1.45, 1.0)
+    assert (racecar.feedforward_law, racecar.progress_window) == ("pursuit", 2)
     assert training.eval_env_options("quadrotor").guide_feedforward == 1.0  # same meaning
     off = tiny_mission(env={"guide_feedforward": None}).training.env_options("quadrotor")
     assert off.guide_feedforward is None
     for mode in ("rrt-paper", "ned", "tl"):  # the baselines do not follow the guide
         baseline = tiny_mission(reward={"mode": mode}).training
         assert baseline.env_options("quadrotor").guide_feedforward is None
+        assert baseline.env_options("racecar").drivable_guide is None
