@@ -6,12 +6,14 @@ per sub-task from its real start, then ``mission_episodes`` whole-mission rollou
 it reaches is owed to the defaults, not to training.
 
 Run ``.venv/bin/python bench/zero_policy.py examples/quad-phi1-inf.yaml`` (a few minutes); the
-plan is made (or reused) in ``var/bench/zero_policy/<mission>/``.
+plan is made (or reused) in ``var/bench/zero_policy/<mission>/``, so variants given with
+``--env '{"guide_feedforward": null}'`` (``training.env`` overrides) run on the same plan.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 from pathlib import Path
@@ -23,7 +25,7 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 from workers.evaluation import MissionEnv, evaluate_subtask, rollout_mission  # noqa: E402
-from workers.mission import load_mission  # noqa: E402
+from workers.mission import load_mission, parse_mission  # noqa: E402
 from workers.pipeline import EVALUATION_SEED, plan_for  # noqa: E402
 from workers.training import subtask_env  # noqa: E402
 
@@ -32,8 +34,14 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("mission", type=Path)
     parser.add_argument("--out", type=Path, default=ROOT / "var" / "bench" / "zero_policy")
+    parser.add_argument("--env", default="{}", help="training.env overrides, JSON")
     args = parser.parse_args(argv)
     mission = load_mission(args.mission)
+    overrides = json.loads(args.env)
+    if overrides:
+        document = mission.model_dump(mode="json")
+        document["training"]["env"].update(overrides)
+        mission = parse_mission(document)
     training = mission.training
     plan = plan_for(mission, args.out / mission.name)
     robot = mission.robot.model

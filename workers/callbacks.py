@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 
 from workers.evaluation import SubtaskEvaluation
@@ -45,15 +46,20 @@ class ResumableEvalCallback(EvalCallback):
         evaluations = len(self.evaluations_successes)
         go_on = super()._on_step()
         rate = self.last_success_rate
-        if self.best_path is not None and len(self.evaluations_successes) > evaluations:
+        if len(self.evaluations_successes) > evaluations:
             assert rate is not None
-            if self.best is None or rate > self.best[1]:
-                self.best = (int(self.num_timesteps), rate)
-                self.model.save(self.best_path)
-                self.best_path.with_suffix(".json").write_text(
-                    json.dumps({"steps": self.best[0], "success_rate": rate})
-                )
+            self.offer(self.model, int(self.num_timesteps), rate)
         return go_on
+
+    def offer(self, model: BaseAlgorithm, steps: int, rate: float) -> None:
+        """Keep ``model`` (evaluated at ``rate`` after ``steps``) if it beats the kept one."""
+        if self.best_path is None or (self.best is not None and rate <= self.best[1]):
+            return
+        self.best = (steps, rate)
+        model.save(self.best_path)
+        self.best_path.with_suffix(".json").write_text(
+            json.dumps({"steps": steps, "success_rate": rate})
+        )
 
     def restore(self, upto: int) -> None:
         """Load the earlier evaluations of ``log_path`` up to step ``upto`` (if any), and the

@@ -52,6 +52,7 @@ from workers.callbacks import (
 )
 from workers.evaluation import SubtaskEvaluation, evaluate_subtask
 from workers.mission import MissionSpec, parse_mission
+from workers.residual import recorded_start, start_check, zero_output_layer
 from workers.training_spec import StartPose, SubtaskJob, TrainingSpec
 
 ALGORITHMS: dict[str, type[BaseAlgorithm]] = {"sac": SAC, "td3": TD3, "ddpg": DDPG, "ppo": PPO}
@@ -92,7 +93,8 @@ class TrainResult:
     periodic evaluation (the first with the highest success rate), if better than the last one;
     None: the policy at ``steps``."""
     curve: list[tuple[int, float]] = field(default_factory=list)
-    """``(steps, success rate)`` of every periodic evaluation."""
+    """``(steps, success rate)`` of every periodic evaluation (and of the start check at step 0
+    of a residual agent, ``workers.residual``)."""
     final: dict[str, Any] | None = None
     """``SubtaskEvaluation.to_json()`` over ``final_eval_episodes`` (None when cancelled)."""
     seconds: float = 0.0
@@ -201,15 +203,18 @@ def train_subtask(
     test_env = subtask_env(mission, plan, training, k, True, starts)
     folder = out / "checkpoints"
     warm = Path(spec.warm_start) if spec.warm_start is not None else None
-    model, resumed = _model(training, env, folder, spec.seed, warm)
+    residual = training.env_options(mission.robot.model).guide_feedforward is not None
+    model, resumed = _model(training, env, folder, spec.seed, warm, residual)
+    fresh = resumed == 0 and not checkpoints(folder) and warm is None
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        return model.predict(obs, deterministic=True)[0]
 
     def final_evaluation() -> SubtaskEvaluation:
-        return evaluate_subtask(
-            lambda obs: model.predict(obs, deterministic=True)[0],
-            test_env,
-            training.final_eval_episodes,
-            seed=spec.seed + 2,
-        )
+        return evaluate_subtask(act, test_env, training.final_eval_episodes, seed=spec.seed + 2)
+
+    def quick_evaluation() -> SubtaskEvaluation:
+        return evaluate_subtask(act, test_env, training.eval_episodes, seed=spec.seed + 1)
 
     model.set_logger(configure(str(out / "logs" / f"run_{resumed}"), ["csv", "tensorboard"]))
     evaluation = ResumableEvalCallback(
@@ -225,6 +230,10 @@ def train_subtask(
         best_path=out / "best_model.zip",
     )
     evaluation.restore(resumed)
+    start = None
+    if residual and fresh:
+        start = start_check(quick_evaluation, final_evaluation, training.target_success, out)
+        evaluation.offer(model, 0, start.success_rate)
     every = training.checkpoint_freq or training.eval_freq
     callbacks: list[BaseCallback] = [
         evaluation,
@@ -241,7 +250,8 @@ def train_subtask(
         on_progress(resumed, evaluation.last_success_rate, training.n_timesteps)
     remaining = training.n_timesteps - resumed
     cancelled = should_stop is not None and should_stop()
-    if remaining > 0 and not cancelled:
+    at_start = start is not None and start.confirmed is not None
+    if remaining > 0 and not cancelled and not at_start:
         model.learn(remaining, callback=CallbackList(callbacks), reset_num_timesteps=False)
         cancelled = cancel is not None and cancel.stopped
     steps = int(model.num_timesteps)
@@ -252,8 +262,9 @@ def train_subtask(
     stopped: Stopped = "budget"
     if cancelled:
         stopped = "cancelled"
-    elif stopper.reached:
+    elif stopper.reached or at_start:
         stopped = "target"
+    begun = recorded_start(out)
     result = TrainResult(
         subtask=spec.subtask,
         seed=spec.seed,
@@ -261,7 +272,7 @@ def train_subtask(
         steps=steps,
         resumed_from=resumed,
         stopped=stopped,
-        curve=evaluation.success_curve,
+        curve=([(0, begun)] if begun is not None else []) + evaluation.success_curve,
     )
     if stopped == "budget":
         model, result.policy_steps = keep_best_policy(model, evaluation, training, env)
@@ -269,14 +280,17 @@ def train_subtask(
         final = out / "model.zip"
         model.save(final)
         confirmed = stopper.confirmed if stopped == "target" else None
+        if at_start and start is not None:
+            confirmed = start.confirmed
         result.final = (confirmed or final_evaluation()).to_json()
         result.model_path = str(final)
     env.close()
     eval_env.close()
     test_env.close()
     result.seconds = time.monotonic() - t0
-    if progress is not None:
-        progress.report()
+    if on_progress is not None:
+        rate = evaluation.last_success_rate
+        on_progress(steps, begun if rate is None else rate, training.n_timesteps)
     if stopped != "cancelled":
         stored.write_text(json.dumps(result.to_json(), indent=1))
     return result
@@ -290,10 +304,16 @@ def _meets(result: TrainResult, target: float) -> bool:
 
 
 def _model(
-    training: TrainingSpec, env: DummyVecEnv, folder: Path, seed: int, warm: Path | None = None
+    training: TrainingSpec,
+    env: DummyVecEnv,
+    folder: Path,
+    seed: int,
+    warm: Path | None = None,
+    residual: bool = False,
 ) -> tuple[BaseAlgorithm, int]:
     """The newest checkpoint in ``folder`` with its replay buffer; else, with ``warm`` (a
-    finished job's folder), its policy and newest replay buffer at step 0; else a fresh model."""
+    finished job's folder), its policy and newest replay buffer at step 0; else a fresh model
+    (``residual``: its action output starts at zero, ``workers.residual``)."""
     cls = ALGORITHMS[training.algorithm]
     found = checkpoints(folder)
     if not found and warm is not None:
@@ -312,7 +332,10 @@ def _model(
     shape = env.action_space.shape
     assert shape is not None
     params = hyperparameters(training, int(np.prod(shape)))
-    return cls("MlpPolicy", env, seed=seed, device="cpu", verbose=0, **params), 0
+    model = cls("MlpPolicy", env, seed=seed, device="cpu", verbose=0, **params)
+    if residual:
+        zero_output_layer(model)
+    return model, 0
 
 
 def _warm_model(cls: type[BaseAlgorithm], env: DummyVecEnv, warm: Path, seed: int) -> BaseAlgorithm:
