@@ -1,5 +1,6 @@
 """The guide feed-forward of ``EnvOptions.guide_feedforward``: a command toward the guide's
-carrot that the policy's action corrects.
+carrot that the policy's action corrects; :class:`ActionShaping` applies it, and
+``EnvOptions.min_forward``, to every action of the env.
 
 The carrot is the centre of the r-ball ``AHEAD`` balls past the robot's progress index on the
 current leg (the leg's last ball at most). For robots commanded by a world-frame velocity or
@@ -22,10 +23,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from envs.robots.base import wrap_angle
+from envs.observation import HEADING_FEATURES
+from envs.rewards import EnvConfigError
+from envs.robots.base import Robot, wrap_angle
+from planner.guidance import Guide
+
+if TYPE_CHECKING:
+    from envs.options import EnvOptions
 
 AHEAD = 2
 """Balls past the progress index that the carrot sits (the ``follower`` of the tests)."""
@@ -108,3 +116,62 @@ def pursuit_turn(
     if math.cos(alpha) < 0.0:
         return 1.0 if alpha > 0 else -1.0
     return max(-1.0, min(1.0, 2.0 * math.sin(alpha) / distance * turning_radius))
+
+
+class ActionShaping:
+    """``min_forward`` and ``guide_feedforward`` (with its ``feedforward_law``) of an env's
+    options, checked against the robot at construction and applied to each action."""
+
+    def __init__(self, robot: Robot, options: EnvOptions) -> None:
+        self.robot = robot
+        self.forward = options.min_forward
+        if self.forward is not None and robot.name not in HEADING_FEATURES:
+            raise EnvConfigError(
+                "options.min_forward",
+                f"only for robots driven by (forward, turn) actions, not a {robot.name}",
+            )
+        self.gain = options.guide_feedforward
+        supported = WORLD_FRAME_ROBOTS | HEADING_FEATURES.keys()
+        if self.gain is not None and robot.name not in supported:
+            raise EnvConfigError(
+                "options.guide_feedforward",
+                f"only for {', '.join(sorted(supported))} robots, not a {robot.name}",
+            )
+        self.pursuit = 0.0
+        """Turning radius of the pursuit law (0: the heading law)."""
+        if options.feedforward_law == "pursuit":
+            self.pursuit = robot.params.min_turning_radius()
+            if self.pursuit <= 0 or robot.name not in HEADING_FEATURES:
+                raise EnvConfigError(
+                    "options.feedforward_law",
+                    f"pursuit is for robots with a minimum turning radius, not a {robot.name}",
+                )
+        self.active = self.forward is not None or self.gain is not None
+        """Whether actions change at all."""
+
+    def apply(self, action: np.ndarray, guide: Guide, index: int) -> np.ndarray:
+        """``action``, validated (a bad action must not be mapped into the box and slip
+        through), with the feed-forward along ``guide`` from progress index ``index`` added and
+        the forward command mapped."""
+        robot = self.robot
+        a = np.array(action, dtype=float)
+        if a.shape != (robot.action_dim,) or not np.all(np.abs(a) <= 1.0):
+            raise ValueError(
+                f"action must have shape ({robot.action_dim},) with components in [-1, 1] "
+                f"(actions are not clipped), got {np.asarray(action).tolist()}"
+            )
+        if self.gain is not None:
+            x = robot.position()
+            if self.pursuit:
+                ahead = PURSUIT_LOOKAHEAD * self.pursuit
+                target = pursuit_target(guide.centers, guide.dist_to_go, index, x, ahead)
+                turn = pursuit_turn(robot.heading(), x, target, self.pursuit)
+            else:
+                toward = carrot_direction(guide.centers, index, x)
+                if robot.name in WORLD_FRAME_ROBOTS:
+                    return with_feedforward(a, self.gain, toward)
+                turn = steering_toward(robot.heading(), toward)
+            a[1] = min(1.0, max(-1.0, a[1] + self.gain * turn))
+        if self.forward is not None:
+            a[0] = self.forward + (1.0 - self.forward) * 0.5 * (a[0] + 1.0)
+        return a

@@ -37,17 +37,9 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from envs.feedforward import (
-    PURSUIT_LOOKAHEAD,
-    WORLD_FRAME_ROBOTS,
-    carrot_direction,
-    pursuit_target,
-    pursuit_turn,
-    steering_toward,
-    with_feedforward,
-)
+from envs.feedforward import ActionShaping
 from envs.handover import Pose
-from envs.observation import HEADING_FEATURES, ObservationBuilder
+from envs.observation import ObservationBuilder
 from envs.potential import GuidePotential
 from envs.rays import RayCaster
 from envs.rewards import (
@@ -157,27 +149,7 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.observation_space = self._obs.space
         self.action_space = spaces.Box(-1.0, 1.0, shape=(robot.action_dim,), dtype=np.float32)
         self.max_steps = int(max_steps)
-        self._forward: float | None = options.min_forward
-        if self._forward is not None and robot.name not in HEADING_FEATURES:
-            raise EnvConfigError(
-                "options.min_forward",
-                f"only for robots driven by (forward, turn) actions, not a {robot.name}",
-            )
-        self._feedforward: float | None = options.guide_feedforward
-        supported = WORLD_FRAME_ROBOTS | HEADING_FEATURES.keys()
-        if self._feedforward is not None and robot.name not in supported:
-            raise EnvConfigError(
-                "options.guide_feedforward",
-                f"only for {', '.join(sorted(supported))} robots, not a {robot.name}",
-            )
-        self._pursuit = 0.0
-        if options.feedforward_law == "pursuit":
-            self._pursuit = robot.params.min_turning_radius()
-            if self._pursuit <= 0 or robot.name not in HEADING_FEATURES:
-                raise EnvConfigError(
-                    "options.feedforward_law",
-                    f"pursuit is for robots with a minimum turning radius, not a {robot.name}",
-                )
+        self._shaping = ActionShaping(robot, options)
         self._leg = first
         self._leg_k = 0
         self._t = 0
@@ -296,8 +268,9 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         robot = self.robot
-        if self._forward is not None or self._feedforward is not None:
-            action = self._remap(action)
+        if self._shaping.active:
+            leg = self._leg
+            action = self._shaping.apply(action, leg.guide, self._index - leg.offset)
         robot.step(action)
         self._t += 1
         raw = robot.observation()
@@ -356,34 +329,6 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
     def _continuous_togo(self, x: list[float]) -> float:
         """``envs.potential``'s guide left from ``x`` (``dense_progress``)."""
         return self._guide_potential.value(self._leg_k, self._index - self._leg.offset, x)
-
-    def _remap(self, action: np.ndarray) -> np.ndarray:
-        """The ``min_forward`` mapping or the ``guide_feedforward`` of a validated action (a
-        bad action must not be mapped into the box and slip through)."""
-        a = np.array(action, dtype=float)
-        if a.shape != (self.robot.action_dim,) or not np.all(np.abs(a) <= 1.0):
-            raise ValueError(
-                f"action must have shape ({self.robot.action_dim},) with components in [-1, 1] "
-                f"(actions are not clipped), got {np.asarray(action).tolist()}"
-            )
-        gain = self._feedforward
-        if gain is not None:
-            local = self._index - self._leg.offset
-            guide, x = self._leg.guide, self.robot.position()
-            if self._pursuit:
-                ahead = PURSUIT_LOOKAHEAD * self._pursuit
-                target = pursuit_target(guide.centers, guide.dist_to_go, local, x, ahead)
-                turn = pursuit_turn(self.robot.heading(), x, target, self._pursuit)
-            else:
-                toward = carrot_direction(guide.centers, local, x)
-                if self.robot.name in WORLD_FRAME_ROBOTS:
-                    return with_feedforward(a, gain, toward)
-                turn = steering_toward(self.robot.heading(), toward)
-            a[1] = min(1.0, max(-1.0, a[1] + gain * turn))
-        if self._forward is not None:
-            low = self._forward
-            a[0] = low + (1.0 - low) * 0.5 * (a[0] + 1.0)
-        return a
 
     def _automaton_outcome(self, x: list[float], d: float) -> int:
         """Feed ``L(x)`` to the automaton: RUNNING (moving on to the next leg when a stage
