@@ -279,6 +279,11 @@ def row_figures(row: Row, out: Path) -> dict[str, Any] | None:
     }
 
 
+def _thousands(steps: int) -> str:
+    """``5k`` for 5000 steps; ``0`` for a policy that met its target before training."""
+    return f"{steps // 1000}k" if steps else "0"
+
+
 def _pct(x: float | None) -> str:
     return "-" if x is None else f"{100 * x:.1f} %"
 
@@ -315,7 +320,7 @@ def table(rows: list[Row], out: Path, workers: int) -> str:
         success = ", ".join(_pct(f.get("success_rate")) for f in finals)
         collisions = ", ".join(_pct(f.get("collision_rate")) for f in finals)
         steps = ", ".join(
-            f"{r['steps'] // 1000}k{'' if r['stopped'] == 'target' else '*'}"
+            f"{_thousands(r['steps'])}{'' if r['stopped'] == 'target' else '*'}"
             + ("+h" if r.get("repairs") else "")
             for r in res
         )
