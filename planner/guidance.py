@@ -1,4 +1,5 @@
-"""The r-ball guide of a sub-task, its progress tracker and the paper's reward.
+"""The r-ball guide of a sub-task and its progress tracker (the paper's reward on top of them is
+``planner.paper_reward``).
 
 A guide is the planned geometric path of one sub-task covered by balls of radius ``r``
 centred on waypoints at most ``spacing`` apart (the paper uses touching balls, spacing
@@ -8,9 +9,7 @@ centre to the end of the guide. The progress measure of a workspace point is
     D(x) = min { dist_to_go[i] : x in ball i },   D(x) = inf outside every ball,
 
 and the progress index ``i_t`` is the ball with the least distance-to-go reached so far; keeping
-it in the state makes the reward Markovian (Cai et al., RA-L 2023). The reward is ``R-`` in an
-obstacle (first priority), ``R++`` at the destination, ``R+`` on a new minimum of ``D`` and 0
-otherwise.
+it in the state makes the reward Markovian (Cai et al., RA-L 2023).
 
 A guide that comes back near itself (a loop, a U-turn) has balls far apart in distance-to-go
 that overlap; there the global minimum lets a point "reach" the end of the loop from its start.
@@ -35,49 +34,6 @@ import numpy as np
 
 _floor = math.floor
 _INF = math.inf
-
-
-@dataclass(frozen=True)
-class RewardConstants:
-    """The paper's reward values: ``R-`` (crash), ``R++`` (goal) and ``R+`` (progress)."""
-
-    crash: float = -100.0
-    goal: float = 200.0
-    progress: float = 5.0
-
-
-def paper_reward(
-    in_obstacle: np.ndarray,
-    at_goal: np.ndarray,
-    improved: np.ndarray,
-    constants: RewardConstants | None = None,
-) -> np.ndarray:
-    """Vectorised reward: ``R-`` if in an obstacle, else ``R++`` at the goal, else ``R+`` on
-    progress, else 0. The arguments are boolean arrays of one shape (a batch of envs)."""
-    c = constants if constants is not None else RewardConstants()
-    return np.where(
-        np.asarray(in_obstacle, dtype=bool),
-        c.crash,
-        np.where(
-            np.asarray(at_goal, dtype=bool),
-            c.goal,
-            np.where(np.asarray(improved, dtype=bool), c.progress, 0.0),
-        ),
-    ).astype(np.float64)
-
-
-def paper_reward_one(
-    in_obstacle: bool, at_goal: bool, improved: bool, constants: RewardConstants | None = None
-) -> float:
-    """Scalar twin of :func:`paper_reward` for a single env (no numpy overhead)."""
-    c = constants if constants is not None else RewardConstants()
-    if in_obstacle:
-        return c.crash
-    if at_goal:
-        return c.goal
-    if improved:
-        return c.progress
-    return 0.0
 
 
 def _resample(path: np.ndarray, spacing: float) -> np.ndarray:

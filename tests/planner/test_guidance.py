@@ -7,13 +7,8 @@ import itertools
 import numpy as np
 import pytest
 
-from planner.guidance import (
-    Guide,
-    ProgressTracker,
-    RewardConstants,
-    paper_reward,
-    paper_reward_one,
-)
+from planner.guidance import Guide, ProgressTracker
+from planner.paper_reward import RewardConstants, paper_reward, paper_reward_one
 
 
 def brute_index(guide: Guide, points: np.ndarray) -> np.ndarray:
