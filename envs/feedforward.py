@@ -40,7 +40,8 @@ AHEAD = 2
 
 PURSUIT_LOOKAHEAD = 1.3
 """Pure-pursuit lookahead in minimum turning radii (0.8 m for the racecar, whose drivable
-guides turn on 1.45 radii: a scripted pursuit with it drove all four car sub-tasks)."""
+guides turn on 1.45 radii: with it the zero action drives every sub-task of
+``examples/racecar-phi2-fin.yaml``, ``bench/zero_policy.py``)."""
 
 WORLD_FRAME_ROBOTS = frozenset({"point", "quadrotor"})
 """Robots whose action is a world-frame command, one component per workspace axis."""
