@@ -174,7 +174,11 @@ def course(
     legs = build_course(
         world, spec.radius, subtasks, r_ball, dense=rho > 0, window=opts.progress_window
     )
-    heading = facing if subtasks[0] is pool[0] else legs[0].headings[0]
+    heading = legs[0].headings[0]
+    if subtasks[0] is pool[0]:
+        heading = facing
+    elif given is not None and np.allclose(subtasks[0].start, start):
+        heading = given
     real = [Pose(np.asarray(subtasks[0].start, dtype=float), heading)]
     if plan is not None and opts.handover and not whole_lasso and chosen is not None:
         mission_start = Pose(start, given if given is not None else facing)
