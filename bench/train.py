@@ -381,9 +381,9 @@ def medians(rows: list[Row], out: Path) -> str:
 
 
 # ---------------------------------------------------------------------------------- overhead
-def overhead(steps: int, repeats: int) -> str:
+def overhead(steps: int, repeats: int, mission_name: str = "car-phi2-fin") -> str:
     """SAC steps per CPU second (one process, one torch thread) on the bare dynamics against
-    the car sub-task's NavEnv, interleaved."""
+    the NavEnv of the mission's sub-task 0 with its training options, interleaved."""
     import gymnasium as gym
     import torch
     from stable_baselines3 import SAC
@@ -392,7 +392,7 @@ def overhead(steps: int, repeats: int) -> str:
     from workers.training import hyperparameters, subtask_env
 
     torch.set_num_threads(1)
-    row = Row("car-phi2-fin", "rrt", 0)
+    row = Row(mission_name, "rrt", 0)
     out = Path(os.environ.get("TMPDIR", "/tmp")) / "ltlnav-bench-overhead"
     mission, plan, _ = row_jobs(row, out)
     training = mission.training
@@ -440,8 +440,8 @@ def overhead(steps: int, repeats: int) -> str:
     share = 100.0 * (1.0 - rates["env"] / rates["bare"])
     return (
         f"| env | SAC steps per CPU second (best of {repeats}, {steps} steps) |\n|---|---|\n"
-        f"| bare unicycle dynamics | {rates['bare']:.0f} |\n"
-        f"| NavEnv car sub-task 0 (rrt) | {rates['env']:.0f} |\n\n"
+        f"| bare {mission.robot.model} dynamics | {rates['bare']:.0f} |\n"
+        f"| NavEnv {mission_name} sub-task 0 (rrt, training options) | {rates['env']:.0f} |\n\n"
         f"env + reward share of the training time: {share:.1f} % (target <= 10 %)"
     )
 
@@ -461,9 +461,10 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--report", action="store_true", help="print the table of what is on disk")
     p.add_argument("--overhead", action="store_true", help="env cost against raw SB3 instead")
     p.add_argument("--overhead-steps", type=int, default=3000)
+    p.add_argument("--overhead-mission", default="car-phi2-fin", help="example of --overhead")
     args = p.parse_args(argv)
     if args.overhead:
-        print(overhead(args.overhead_steps, 3))
+        print(overhead(args.overhead_steps, 3, args.overhead_mission))
         return
     rows = args.rows or PRESETS[args.preset]
     if args.env:
