@@ -17,6 +17,9 @@ Rows that train every sub-task also roll out the concatenated policy on the whol
 ``--overhead`` measures instead what the env and reward cost against raw stable-baselines3:
 SAC with the same network trains on the bare robot dynamics (no world, no guide, no reward) and
 on the sub-task's ``NavEnv``, interleaved, best of three; the ratio of their steps per second.
+Beside it, each env alone under the same random actions: the NavEnv's extra CPU time per step
+as a share of a training step, the steadier figure (SAC's rate moves by several percent from
+one run to the next on a shared machine).
 
 Run ``.venv/bin/python bench/train.py`` (the ``table1`` preset; hours on two cores) or
 ``--preset NAME``, ``--rows ...`` to choose, ``--report`` to print what is on disk.
@@ -438,12 +441,31 @@ def overhead(steps: int, repeats: int, mission_name: str = "car-phi2-fin") -> st
             model.learn(steps)
             rates[name] = max(rates[name], steps / (time.process_time() - t0))
     share = 100.0 * (1.0 - rates["env"] / rates["bare"])
+    per_step = {name: _env_step_seconds(env, steps) for name, env in (("bare", bare), ("env", nav))}
+    extra = per_step["env"] - per_step["bare"]
     return (
-        f"| env | SAC steps per CPU second (best of {repeats}, {steps} steps) |\n|---|---|\n"
-        f"| bare {mission.robot.model} dynamics | {rates['bare']:.0f} |\n"
-        f"| NavEnv {mission_name} sub-task 0 (rrt, training options) | {rates['env']:.0f} |\n\n"
-        f"env + reward share of the training time: {share:.1f} % (target <= 10 %)"
+        f"| env | SAC steps per CPU second (best of {repeats}, {steps} steps) "
+        f"| env step alone, ms (random actions) |\n|---|---|---|\n"
+        f"| bare {mission.robot.model} dynamics | {rates['bare']:.0f} "
+        f"| {1e3 * per_step['bare']:.2f} |\n"
+        f"| NavEnv {mission_name} sub-task 0 (rrt, training options) | {rates['env']:.0f} "
+        f"| {1e3 * per_step['env']:.2f} |\n\n"
+        f"env + reward share of the training time: {share:.1f} % from the SAC rates; "
+        f"{100.0 * extra * rates['env']:.1f} % from the env steps alone "
+        f"({1e3 * extra:.2f} ms more per step) (target <= 10 %)"
     )
+
+
+def _env_step_seconds(env: Any, steps: int) -> float:
+    """CPU seconds per step (resets included) of ``env`` under seeded random actions."""
+    env.action_space.seed(0)
+    env.reset(seed=0)
+    t0 = time.process_time()
+    for _ in range(steps):
+        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        if terminated or truncated:
+            env.reset()
+    return (time.process_time() - t0) / steps
 
 
 def main(argv: list[str] | None = None) -> None:
