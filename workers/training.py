@@ -205,7 +205,7 @@ def train_subtask(
     warm = Path(spec.warm_start) if spec.warm_start is not None else None
     residual = training.env_options(mission.robot.model).guide_feedforward is not None
     model, resumed = _model(training, env, folder, spec.seed, warm, residual)
-    fresh = resumed == 0 and not checkpoints(folder) and warm is None
+    fresh = resumed == 0 and warm is None
 
     def act(obs: np.ndarray) -> np.ndarray:
         return model.predict(obs, deterministic=True)[0]
@@ -243,10 +243,8 @@ def train_subtask(
     cancel = StopOnRequest(should_stop) if should_stop is not None else None
     if cancel is not None:
         callbacks.append(cancel)
-    progress = None
     if on_progress is not None:
-        progress = ReportProgress(on_progress, training.n_timesteps, evaluation)
-        callbacks.append(progress)
+        callbacks.append(ReportProgress(on_progress, training.n_timesteps, evaluation))
         on_progress(resumed, evaluation.last_success_rate, training.n_timesteps)
     remaining = training.n_timesteps - resumed
     cancelled = should_stop is not None and should_stop()
