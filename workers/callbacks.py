@@ -41,6 +41,9 @@ class ResumableEvalCallback(EvalCallback):
         self.best: tuple[int, float] | None = None
         """``(steps, success rate)`` of the kept policy: the first evaluation with the highest
         success rate."""
+        self.start_rate: float | None = None
+        """Success rate of the policy before any update (``workers.residual``'s start check):
+        the curve's step-0 point. None: not measured."""
 
     def _on_step(self) -> bool:
         evaluations = len(self.evaluations_successes)
@@ -87,18 +90,20 @@ class ResumableEvalCallback(EvalCallback):
 
     @property
     def success_curve(self) -> list[tuple[int, float]]:
-        """``(steps, success rate)`` of every evaluation so far."""
-        return [
+        """``(steps, success rate)`` of every evaluation so far, the start check's first."""
+        start = [(0, self.start_rate)] if self.start_rate is not None else []
+        return start + [
             (int(t), float(np.mean(s)))
             for t, s in zip(self.evaluations_timesteps, self.evaluations_successes, strict=False)
         ]
 
     @property
     def last_success_rate(self) -> float | None:
-        """The success rate of the latest evaluation (None before the first)."""
-        return (
-            float(np.mean(self.evaluations_successes[-1])) if self.evaluations_successes else None
-        )
+        """The success rate of the latest evaluation (before the first: the start check's, or
+        None)."""
+        if not self.evaluations_successes:
+            return self.start_rate
+        return float(np.mean(self.evaluations_successes[-1]))
 
 
 class StopOnSuccessRate(BaseCallback):

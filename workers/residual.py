@@ -23,7 +23,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from workers.evaluation import SubtaskEvaluation
 
 START_RECORD = "start_check.json"
-"""File in a job's folder that keeps the start check's success rate across restarts."""
+"""File in a job's folder that keeps the start check's quick evaluation across restarts."""
 
 
 def zero_output_layer(model: BaseAlgorithm) -> None:
@@ -60,15 +60,17 @@ def start_check(
 ) -> StartCheck:
     """``quick()`` (a periodic evaluation's episodes), then ``confirm()`` (the final
     evaluation's) if the quick one reaches ``target``; the rate is kept in ``folder``."""
-    rate = quick().success_rate
-    (folder / START_RECORD).write_text(json.dumps({"success_rate": rate}))
+    first = quick()
+    (folder / START_RECORD).write_text(json.dumps(first.to_json()))
+    rate = first.success_rate
     if rate < target:
         return StartCheck(rate, None)
     full = confirm()
     return StartCheck(rate, full if full.success_rate >= target else None)
 
 
-def recorded_start(folder: Path) -> float | None:
-    """The success rate of the start check of the job in ``folder`` (None: none was made)."""
+def recorded_start(folder: Path) -> SubtaskEvaluation | None:
+    """The quick evaluation of the start check of the job in ``folder`` (None: none was made);
+    the step-0 point of its learning curve."""
     path = folder / START_RECORD
-    return float(json.loads(path.read_text())["success_rate"]) if path.is_file() else None
+    return SubtaskEvaluation(**json.loads(path.read_text())) if path.is_file() else None

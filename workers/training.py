@@ -234,6 +234,8 @@ def train_subtask(
     if residual and fresh:
         start = start_check(quick_evaluation, final_evaluation, training.target_success, out)
         evaluation.offer(model, 0, start.success_rate)
+    begun = recorded_start(out)
+    evaluation.start_rate = begun.success_rate if begun is not None else None
     every = training.checkpoint_freq or training.eval_freq
     callbacks: list[BaseCallback] = [
         evaluation,
@@ -262,7 +264,6 @@ def train_subtask(
         stopped = "cancelled"
     elif stopper.reached or at_start:
         stopped = "target"
-    begun = recorded_start(out)
     result = TrainResult(
         subtask=spec.subtask,
         seed=spec.seed,
@@ -270,7 +271,7 @@ def train_subtask(
         steps=steps,
         resumed_from=resumed,
         stopped=stopped,
-        curve=([(0, begun)] if begun is not None else []) + evaluation.success_curve,
+        curve=evaluation.success_curve,
     )
     if stopped == "budget":
         model, result.policy_steps = keep_best_policy(model, evaluation, training, env)
@@ -287,8 +288,7 @@ def train_subtask(
     test_env.close()
     result.seconds = time.monotonic() - t0
     if on_progress is not None:
-        rate = evaluation.last_success_rate
-        on_progress(steps, begun if rate is None else rate, training.n_timesteps)
+        on_progress(steps, evaluation.last_success_rate, training.n_timesteps)
     if stopped != "cancelled":
         stored.write_text(json.dumps(result.to_json(), indent=1))
     return result

@@ -25,6 +25,7 @@ from sqlalchemy.orm import Session
 from service import repository
 from service.db import Database
 from workers.callbacks import checkpoints
+from workers.residual import recorded_start
 
 log = logging.getLogger(__name__)
 
@@ -125,11 +126,15 @@ class JobMonitor:
         first = self._curve_upto is None
         if first:
             # The resume point: later points will be redone, and the evaluations file still
-            # holds those of the run that died: wait for this run to rewrite it.
-            self._curve_upto = steps
-            self._drop_after = steps
+            # holds those of the run that died: wait for this run to rewrite it. A fresh run
+            # redoes its step-0 point too.
+            self._curve_upto = steps if steps > 0 else -1
+            self._drop_after = self._curve_upto
             with suppress(FileNotFoundError):
                 self._npz_mtime = (self.out_dir / "evaluations.npz").stat().st_mtime
+            start = recorded_start(self.out_dir) if steps == 0 else None
+            if start is not None:  # written by this run before its first progress call
+                self._points.append((0, start.episodes, start.success_rate, None))
         now = time.monotonic()
         fresh = self._collect()
         if not (
@@ -206,7 +211,7 @@ class JobMonitor:
         except (OSError, ValueError, KeyError, EOFError):
             return []  # being rewritten: read it next time
         self._npz_mtime = mtime
-        upto = self._curve_upto or 0
+        upto = self._curve_upto if self._curve_upto is not None else -1
         out: list[tuple[int, int, float, float | None]] = []
         for k, at in enumerate(steps):
             if at <= upto:

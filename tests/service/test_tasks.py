@@ -308,3 +308,44 @@ def test_a_database_blip_delays_progress_writes_but_loses_none(
     monitor.on_progress(150, None, 200)
     _, jobs, _, saved = load(settings, mission_id)
     assert saved[0] is not None and saved[0].steps == 100 and jobs[0].steps_done == 150
+
+
+def test_a_residual_jobs_start_check_is_the_first_point_of_its_curve(settings: Settings) -> None:
+    doc = tiny_mission(n_timesteps=100, eval_freq=50, env={"guide_feedforward": 1.0})
+    mission_id = submit(settings, doc.model_dump(mode="json"))
+    plan_step(settings, mission_id, Recorder())
+    assert train_step(settings, mission_id, 0, Recorder(), in_chord=True) == "done"
+    _, jobs, curves, _ = load(settings, mission_id)
+    points = [(p.steps, p.success_rate) for p in curves[0]]
+    assert points == [tuple(p) for p in jobs[0].result["curve"]]
+    assert points[0][0] == 0 and [s for s, _ in points[1:]] in ([], [50, 100])
+
+
+def test_a_restarted_job_keeps_one_start_point(settings: Settings) -> None:
+    mission_id = submit(settings)
+    plan_step(settings, mission_id, Recorder())
+    db = Database(settings.database_url)
+    with db.session() as session:
+        job = repository.get_job(session, mission_id, 0)
+        assert job is not None and repository.claim_job(session, job.id, "me") is not None
+    out = Path(job.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    start = {
+        "episodes": 4,
+        "success_rate": 0.25,
+        "collision_rate": 0.75,
+        "timeout_rate": 0.0,
+        "mean_steps_to_goal": 30.0,
+    }
+    (out / "start_check.json").write_text(json.dumps(start))
+
+    def curve() -> list[tuple[int, int, float]]:
+        points = load(settings, mission_id)[2][0]
+        return [(p.steps, p.episodes, p.success_rate) for p in points]
+
+    JobMonitor(db, mission_id, job.id, "me", out, 0.01).on_progress(0, 0.25, 200)
+    assert curve() == [(0, 4, 0.25)]
+    JobMonitor(db, mission_id, job.id, "me", out, 0.01).on_progress(0, 0.25, 200)  # fresh again
+    assert curve() == [(0, 4, 0.25)]
+    JobMonitor(db, mission_id, job.id, "me", out, 0.01).on_progress(100, 0.25, 200)  # resumed
+    assert curve() == [(0, 4, 0.25)]

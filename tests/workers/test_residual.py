@@ -3,7 +3,6 @@ whose starting policy already meets the target stops at step 0."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +11,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from planner.serialize import plan_to_dict
 from workers.pipeline import plan_for
-from workers.residual import START_RECORD, zero_output_layer
+from workers.residual import recorded_start, zero_output_layer
 from workers.training import ALGORITHMS, subtask_env, train_subtask
 from workers.training_spec import SubtaskJob
 
@@ -56,7 +55,8 @@ def test_a_feedforward_that_meets_the_target_stops_the_job_at_step_0(tmp_path: P
     result = train_subtask(_unicycle_job(tmp_path, 1.0), out, on_progress=lambda *a: seen.append(a))
     assert (result.steps, result.stopped, result.curve) == (0, "target", [(0, 1.0)])
     assert result.final is not None and result.final["success_rate"] == 1.0
-    assert json.loads((out / START_RECORD).read_text()) == {"success_rate": 1.0}
+    start = recorded_start(out)
+    assert start is not None and (start.success_rate, start.episodes) == (1.0, 1)
     assert seen[-1] == (0, 1.0, 200)
     assert train_subtask(_unicycle_job(tmp_path, 1.0), out) == result  # stored, not redone
 
