@@ -19,6 +19,7 @@ import gymnasium as gym
 import numpy as np
 
 from envs.drivable import clearances, redraw_course
+from envs.feedforward import Track
 from envs.handover import Pose, checked_starts, handover_poses
 from envs.nav_env import Leg, NavEnv
 from envs.options import EnvOptions, options_with
@@ -216,6 +217,7 @@ def build_course(
     trackers' progress window."""
     d = world.dim
     guides: list[Guide] = []
+    tracks: list[Track] = []
     for k, sub in enumerate(subtasks):
         start, path = np.asarray(sub.start, dtype=float), np.asarray(sub.path, dtype=float)
         if start.shape != (d,):
@@ -230,7 +232,15 @@ def build_course(
             raise EnvConfigError(
                 "subtask.goal", f"sub-task {k}: no region {sub.goal!r} (known: {known})"
             )
-        guides.append(Guide.from_path(thin(path, 2.0 * r_ball) if dense else path, r_ball))
+        if dense:
+            balls = thin(path, 2.0 * r_ball)
+            guide = Guide.from_path(balls, r_ball)
+            assert guide.num_balls == len(balls)  # thinned chords are never longer than 2 r
+            tracks.append(Track.dense(path, guide.num_balls))
+        else:
+            guide = Guide.from_path(path, r_ball)
+            tracks.append(Track.of_guide(guide))
+        guides.append(guide)
     if not subtasks:
         raise EnvConfigError("subtask", "no sub-task to drive")
     start = np.asarray(subtasks[0].start, dtype=float)
@@ -243,11 +253,12 @@ def build_course(
     legs: list[Leg] = []
     offset = 0
     lengths = [g.length for g in guides]
-    for k, (sub, guide) in enumerate(zip(subtasks, guides, strict=True)):
+    for k, (sub, guide, track) in enumerate(zip(subtasks, guides, tracks, strict=True)):
         goal = RegionTest(world.regions[sub.goal]) if sub.goal else None
         headings = [heading_along(guide.centers[i:]) for i in range(guide.num_balls)]
         tracker = ProgressTracker(guide, window=window)
-        legs.append(Leg(sub, guide, tracker, offset, sum(lengths[k + 1 :]), goal, headings))
+        rest = sum(lengths[k + 1 :])
+        legs.append(Leg(sub, guide, tracker, offset, rest, goal, headings, track))
         offset += guide.num_balls
     return legs
 

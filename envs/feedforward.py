@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -72,35 +73,62 @@ def steering_toward(heading: float, direction: np.ndarray) -> float:
     return max(-1.0, min(1.0, error / (math.pi / 2)))
 
 
+@dataclass(frozen=True)
+class Track:
+    """The path the pursuit law follows along a leg: the dense drivable path where the guide
+    was redrawn (``EnvOptions.drivable_guide``; its balls, ``2 r`` apart, cut the chord of a
+    0.9 m arc up to 0.35 m inside it, enough to clip a box), else the guide's ball centres."""
+
+    points: np.ndarray
+    """``(m, d)`` points along the path."""
+    togo: np.ndarray
+    """``(m,)`` path length from each point to the end (non-increasing)."""
+    ball_togo: np.ndarray
+    """``(n,)`` path length from each of the guide's balls to the end."""
+
+    @classmethod
+    def of_guide(cls, guide: Guide) -> Track:
+        """The guide's ball centres."""
+        return cls(guide.centers, guide.dist_to_go, guide.dist_to_go)
+
+    @classmethod
+    def dense(cls, points: np.ndarray, balls: int) -> Track:
+        """``points``, a dense path whose ``balls`` marks evenly spaced along it are the
+        guide's balls (``planner.drivable.thin``)."""
+        pts = np.asarray(points, dtype=float)
+        along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+        total = float(along[-1])
+        return cls(pts, total - along, total - np.linspace(0.0, total, balls))
+
+
 def pursuit_target(
-    centres: np.ndarray,
-    dist_to_go: np.ndarray,
-    index: int,
-    x: Sequence[float] | np.ndarray,
-    ahead: float,
+    track: Track, index: int, x: Sequence[float] | np.ndarray, ahead: float
 ) -> np.ndarray:
-    """The point ``ahead`` metres along the guide polyline through ``centres`` past the
-    projection of ``x`` on its segments around ball ``index`` (-1: none reached)."""
-    n = len(centres)
-    if n == 1:
-        return np.asarray(centres[0], dtype=float)
-    lo = max(index - 1, 0)
-    hi = min(max(index, 0) + 4, n - 1)
-    a, b = centres[lo:hi], centres[lo + 1 : hi + 1]
+    """The point ``ahead`` metres along ``track`` past the projection of ``x`` on its stretch
+    from ball ``index - 1`` to ball ``index + 4`` (``index`` -1: none reached)."""
+    points, togo = track.points, track.togo
+    m, n = len(points), len(track.ball_togo)
+    if m == 1:
+        return np.asarray(points[0], dtype=float)
+    far = track.ball_togo[max(index - 1, 0)]
+    near = track.ball_togo[min(max(index, 0) + 4, n - 1)]
+    lo = min(max(int(np.searchsorted(-togo, -far, side="right")) - 1, 0), m - 2)
+    hi = max(min(int(np.searchsorted(-togo, -near, side="left")), m - 1), lo + 1)
+    a, b = points[lo:hi], points[lo + 1 : hi + 1]
     seg = b - a
     length_sq = np.maximum(np.einsum("ij,ij->i", seg, seg), 1e-18)
     point = np.asarray(x, dtype=float)
     t = np.clip(np.einsum("ij,ij->i", point - a, seg) / length_sq, 0.0, 1.0)
     gap = a + t[:, None] * seg - point
     j = int(np.argmin(np.einsum("ij,ij->i", gap, gap)))
-    togo = float(dist_to_go[lo + j]) - t[j] * math.sqrt(length_sq[j]) - ahead
-    k = int(np.searchsorted(-dist_to_go, -togo, side="right"))
-    if k >= n:
-        return np.asarray(centres[-1], dtype=float)
+    left = float(togo[lo + j]) - t[j] * math.sqrt(length_sq[j]) - ahead
+    k = int(np.searchsorted(-togo, -left, side="right"))
+    if k >= m:
+        return np.asarray(points[-1], dtype=float)
     k = max(k, 1)
-    span = float(dist_to_go[k - 1] - dist_to_go[k])
-    share = (float(dist_to_go[k - 1]) - togo) / span if span > 0 else 1.0
-    return np.asarray(centres[k - 1] + min(max(share, 0.0), 1.0) * (centres[k] - centres[k - 1]))
+    span = float(togo[k - 1] - togo[k])
+    share = (float(togo[k - 1]) - left) / span if span > 0 else 1.0
+    return np.asarray(points[k - 1] + min(max(share, 0.0), 1.0) * (points[k] - points[k - 1]))
 
 
 def pursuit_turn(
@@ -150,10 +178,10 @@ class ActionShaping:
         self.active = self.forward is not None or self.gain is not None
         """Whether actions change at all."""
 
-    def apply(self, action: np.ndarray, guide: Guide, index: int) -> np.ndarray:
+    def apply(self, action: np.ndarray, guide: Guide, track: Track, index: int) -> np.ndarray:
         """``action``, validated (a bad action must not be mapped into the box and slip
-        through), with the feed-forward along ``guide`` from progress index ``index`` added and
-        the forward command mapped."""
+        through), with the feed-forward along ``guide`` (pursuit: along its ``track``) from
+        progress index ``index`` added and the forward command mapped."""
         robot = self.robot
         a = np.array(action, dtype=float)
         if a.shape != (robot.action_dim,) or not np.all(np.abs(a) <= 1.0):
@@ -165,7 +193,7 @@ class ActionShaping:
             x = robot.position()
             if self.pursuit:
                 ahead = PURSUIT_LOOKAHEAD * self.pursuit
-                target = pursuit_target(guide.centers, guide.dist_to_go, index, x, ahead)
+                target = pursuit_target(track, index, x, ahead)
                 turn = pursuit_turn(robot.heading(), x, target, self.pursuit)
             else:
                 toward = carrot_direction(guide.centers, index, x)

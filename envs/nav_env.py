@@ -37,7 +37,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from envs.feedforward import ActionShaping
+from envs.feedforward import ActionShaping, Track
 from envs.handover import Pose
 from envs.observation import ObservationBuilder
 from envs.potential import GuidePotential
@@ -79,6 +79,8 @@ class Leg:
     """The goal region (None: the end of the guide)."""
     headings: list[float]
     """Yaw from each ball's centre toward the guide ahead (curriculum starts)."""
+    track: Track
+    """The path the pursuit feed-forward follows (``envs.feedforward.Track``)."""
 
 
 class NavEnv(gym.Env[np.ndarray, np.ndarray]):
@@ -270,7 +272,7 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         robot = self.robot
         if self._shaping.active:
             leg = self._leg
-            action = self._shaping.apply(action, leg.guide, self._index - leg.offset)
+            action = self._shaping.apply(action, leg.guide, leg.track, self._index - leg.offset)
         robot.step(action)
         self._t += 1
         raw = robot.observation()

@@ -14,12 +14,14 @@ import pytest
 
 from envs.drivable import clearances, redraw_course
 from envs.factory import make_env
-from envs.feedforward import pursuit_target, pursuit_turn
+from envs.feedforward import Track, pursuit_target, pursuit_turn
 from envs.handover import Pose, arrival_pose
 from envs.options import EnvOptions
 from envs.rewards import EnvConfigError
 from envs.robots import robot_params
 from envs.spec import RobotSpec
+from planner.drivable import thin
+from planner.guidance import Guide
 from planner.options import PlannerSpec
 from planner.plan import MissionPlan, plan_mission
 from planner.shapes import Ball, Box
@@ -125,11 +127,23 @@ def test_only_robots_with_a_turning_radius_take_drivable_guides() -> None:
 
 def test_pursuit_target_runs_ahead_of_the_projection_on_the_guide() -> None:
     centres = np.array([[float(i), 0.0] for i in range(6)])
-    togo = 5.0 - centres[:, 0]
-    target = pursuit_target(centres, togo, 2, [2.3, 0.5], 1.0)
-    np.testing.assert_allclose(target, [3.3, 0.0])
-    np.testing.assert_allclose(pursuit_target(centres, togo, -1, [-1.0, 0.0], 0.5), [0.5, 0.0])
-    np.testing.assert_allclose(pursuit_target(centres, togo, 5, [4.8, 0.0], 2.0), [5.0, 0.0])
+    track = Track.of_guide(Guide.from_path(centres, 0.5))
+    np.testing.assert_allclose(pursuit_target(track, 2, [2.3, 0.5], 1.0), [3.3, 0.0])
+    np.testing.assert_allclose(pursuit_target(track, -1, [-1.0, 0.0], 0.5), [0.5, 0.0])
+    np.testing.assert_allclose(pursuit_target(track, 5, [4.8, 0.0], 2.0), [5.0, 0.0])
+
+
+def test_pursuit_on_a_dense_track_follows_the_arc_the_balls_cut() -> None:
+    rho = 0.9
+    angles = np.linspace(0.0, np.pi, 200)  # a half circle, the turn of a U-turn loop
+    arc = np.stack([rho * np.sin(angles), rho * (1.0 - np.cos(angles))], axis=1)
+    balls = thin(arc, 1.42)
+    track = Track.dense(arc, len(balls))
+    np.testing.assert_allclose(track.ball_togo[[0, -1]], [np.pi * rho, 0.0], atol=1e-3)
+    on_arc = pursuit_target(track, 0, arc[0], 0.5 * np.pi * rho)  # a quarter turn on
+    np.testing.assert_allclose(on_arc, [rho, rho], atol=1e-3)
+    on_chord = pursuit_target(Track.of_guide(Guide.from_path(balls, 0.71)), 0, arc[0], 0.64)
+    assert np.hypot(*(on_chord - [0.0, rho])) < rho - 0.2  # the chord cuts inside the arc
 
 
 def test_pursuit_turn_is_the_arc_curvature_in_units_of_the_tightest() -> None:
