@@ -14,9 +14,11 @@ to discover motion at all.
 
 For robots with a minimum turning radius (racecar) ``EnvOptions.feedforward_law = "pursuit"``
 replaces that turn by pure pursuit (Coulter 1992): the target is the point ``PURSUIT_LOOKAHEAD``
-turning radii along the guide past the robot's projection on it, and the turn command is the
-curvature of the arc through it in units of the tightest curvature. On a guide the car can
-drive (``EnvOptions.drivable_guide``) this tracks the loops and curves the heading law cuts.
+turning radii along the leg's :class:`Track` past the robot's projection on it, and the turn
+command is the curvature of the arc through it in units of the tightest curvature. On a guide
+the car can drive (``EnvOptions.drivable_guide``) the track is the dense redrawn path, and this
+tracks the loops and curves that the heading law, or pursuit of the chords between the balls,
+cuts.
 """
 
 from __future__ import annotations

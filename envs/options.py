@@ -77,7 +77,8 @@ class EnvOptions:
     feedforward_law: FeedforwardLaw = "heading"
     """How ``guide_feedforward`` turns a (forward, turn) robot: ``"heading"``, toward the carrot
     in proportion to the heading error; ``"pursuit"`` (robots with a minimum turning radius),
-    pure pursuit of a point along the guide (``envs.feedforward``)."""
+    pure pursuit of a point along the guide (``envs.feedforward``; with ``drivable_guide``,
+    along the dense redrawn path)."""
     drivable_guide: float | None = None
     """Robots with a minimum turning radius (racecar) only: redraw every guide as a path of
     Dubins arcs of this multiple (>= 1) of that radius, from the pose the mission hands the
