@@ -33,6 +33,7 @@ import numpy as np
 from envs.observation import HEADING_FEATURES
 from envs.rewards import EnvConfigError
 from envs.robots.base import Robot, wrap_angle
+from planner.drivable import arc_lengths
 from planner.guidance import Guide
 
 if TYPE_CHECKING:
@@ -98,7 +99,7 @@ class Track:
         """``points``, a dense path whose ``balls`` marks evenly spaced along it are the
         guide's balls (``planner.drivable.thin``)."""
         pts = np.asarray(points, dtype=float)
-        along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+        along = arc_lengths(pts)
         total = float(along[-1])
         return cls(pts, total - along, total - np.linspace(0.0, total, balls))
 

@@ -161,7 +161,13 @@ def thin(points: np.ndarray, spacing: float) -> np.ndarray:
     if not spacing > 0:
         raise ValueError("the spacing must be > 0")
     pts = np.asarray(points, dtype=float)
-    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))])
+    along = arc_lengths(pts)
     count = max(1, math.ceil(along[-1] / spacing - 1e-9))
     marks = np.linspace(0.0, along[-1], count + 1)
     return np.stack([np.interp(marks, along, pts[:, j]) for j in range(pts.shape[1])], axis=1)
+
+
+def arc_lengths(points: np.ndarray) -> np.ndarray:
+    """``(n,)`` length of the polyline ``points`` ``(n, d)`` from its first point to each."""
+    steps = np.linalg.norm(np.diff(np.asarray(points, dtype=float), axis=0), axis=1)
+    return np.concatenate([[0.0], np.cumsum(steps)])

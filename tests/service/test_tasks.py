@@ -53,6 +53,17 @@ def load(settings: Settings, mission_id: str) -> Any:
         return mission, jobs, curves, saved
 
 
+def claimed_job(settings: Settings, worker: str) -> tuple[str, Database, Job]:
+    """A planned default mission, its database and its job 0 claimed by ``worker``."""
+    mission_id = submit(settings)
+    plan_step(settings, mission_id, Recorder())
+    db = Database(settings.database_url)
+    with db.session() as session:
+        job = repository.get_job(session, mission_id, 0)
+        assert job is not None and repository.claim_job(session, job.id, worker) is not None
+    return mission_id, db, job
+
+
 def test_a_mission_runs_through_plan_train_assemble(settings: Settings) -> None:
     budget = 100  # half of TINY: the worker end-to-end tests train the whole of it
     mission_id = submit(
@@ -211,13 +222,7 @@ def test_hand_over_repair_reports_its_progress_and_stops_on_cancel(settings: Set
 
 
 def test_a_job_handed_to_another_worker_stops_writing(settings: Settings) -> None:
-    mission_id = submit(settings)
-    plan_step(settings, mission_id, Recorder())
-    db = Database(settings.database_url)
-    with db.session() as session:
-        job = repository.get_job(session, mission_id, 0)
-        assert job is not None
-        repository.claim_job(session, job.id, "old-worker")
+    mission_id, db, job = claimed_job(settings, "old-worker")
     monitor = JobMonitor(db, mission_id, job.id, "old-worker", Path(job.out_dir), 0.01)
     monitor.on_progress(0, None, 200)
     time.sleep(0.02)
@@ -285,12 +290,7 @@ def test_a_database_blip_delays_progress_writes_but_loses_none(
 ) -> None:
     from sqlalchemy.exc import OperationalError
 
-    mission_id = submit(settings)
-    plan_step(settings, mission_id, Recorder())
-    db = Database(settings.database_url)
-    with db.session() as session:
-        job = repository.get_job(session, mission_id, 0)
-        assert job is not None and repository.claim_job(session, job.id, "me") is not None
+    mission_id, db, job = claimed_job(settings, "me")
     folder = Path(job.out_dir) / "checkpoints"
     folder.mkdir(parents=True)
     (folder / "model_100_steps.zip").write_bytes(b"model")
@@ -322,12 +322,7 @@ def test_a_residual_jobs_start_check_is_the_first_point_of_its_curve(settings: S
 
 
 def test_a_restarted_job_keeps_one_start_point(settings: Settings) -> None:
-    mission_id = submit(settings)
-    plan_step(settings, mission_id, Recorder())
-    db = Database(settings.database_url)
-    with db.session() as session:
-        job = repository.get_job(session, mission_id, 0)
-        assert job is not None and repository.claim_job(session, job.id, "me") is not None
+    mission_id, db, job = claimed_job(settings, "me")
     out = Path(job.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     start = {
