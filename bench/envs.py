@@ -45,10 +45,10 @@ from envs.rewards import RegionTest, ScaledReward
 from envs.robots import Robot, make_robot
 from envs.spec import RobotSpec
 from planner.decompose import SubTask
+from planner.geometry.shapes import Ball, Box, Shape
+from planner.geometry.world import World
 from planner.guidance import ProgressTracker
-from planner.rrt_star import RRTStar
-from planner.shapes import Ball, Box, Shape
-from planner.world import World
+from planner.search.rrt_star import RRTStar
 
 RADIUS = 0.1
 REPEATS = 3

@@ -21,9 +21,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from planner.errors import PlanningError  # noqa: E402
-from planner.ltl import parse  # noqa: E402
+from planner.ltl.formula import parse  # noqa: E402
+from planner.ltl.translate import translate  # noqa: E402
 from planner.plan import plan_mission, verify_plan  # noqa: E402
-from planner.translate import translate  # noqa: E402
 from workers.mission import MissionSpec, load_mission  # noqa: E402
 
 EXAMPLES = [

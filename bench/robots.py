@@ -20,8 +20,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from envs.robots import Robot, make_robot
-from planner.shapes import Ball, Box, Shape
-from planner.world import World
+from planner.geometry.shapes import Ball, Box, Shape
+from planner.geometry.world import World
 
 
 @dataclass(frozen=True)

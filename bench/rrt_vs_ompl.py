@@ -3,10 +3,10 @@
 The world is 20 x 20 m with 50 random boxes; the robot (clearance 0.2 m) goes from the corner
 (-9, -9) to a goal ball of radius 0.5 m around (9, 9). Both planners use steering range 1 m,
 goal bias 0.05, rewiring radius ``min(1.1 (2 (1 + 1/d) mu / zeta_d)^(1/d) (log n / n)^(1/d), 1)``
-and the same collision checker, our :class:`planner.world.World` (exact segment tests):
+and the same collision checker, our :class:`planner.geometry.world.World` (exact segment tests):
 
-- ``ours``: :class:`planner.rrt_star.RRTStar`, which checks all candidate parents of a new node
-  in one vectorised call;
+- ``ours``: :class:`planner.search.rrt_star.RRTStar`, which checks all candidate parents of a
+  new node in one vectorised call;
 - ``ompl``: OMPL's ``RRTstar`` (radius variant, ``setKNearest(False)``) with a Python
   ``MotionValidator`` calling ``World.segments_free`` once per motion and a state validity
   checker calling ``World.in_collision``;
@@ -37,9 +37,9 @@ import numpy as np
 # Run as a script, bench/ comes first on sys.path and bench/planner.py would shadow the package.
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from planner.rrt_star import RRTStar
-from planner.shapes import Ball, Box, Shape
-from planner.world import World
+from planner.geometry.shapes import Ball, Box, Shape
+from planner.geometry.world import World
+from planner.search.rrt_star import RRTStar
 
 START = np.array([-9.0, -9.0])
 GOAL = np.array([9.0, 9.0])

@@ -1,7 +1,7 @@
 """Drivable guides (``EnvOptions.drivable_guide``): a car's sub-task guides redrawn as paths it
 can follow.
 
-:func:`planner.drivable.drivable_path` redraws one polyline from one pose. Here a mission's
+:func:`planner.geometry.drivable.drivable_path` redraws one polyline from one pose. Here a mission's
 sub-tasks are redrawn in the order a rollout drives them (the prefix, then the suffix once):
 the first from the mission start, every other one from where the previous *redrawn* guide
 enters its goal region, facing along it (``envs.handover.arrival_pose``), which is also where
@@ -9,10 +9,10 @@ enters its goal region, facing along it (``envs.handover.arrival_pose``), which 
 guide is redrawn at the largest clearance that fits of :func:`clearances`; a sub-task that fits
 none keeps its polyline (the env still trains, on the guide a point robot would follow).
 
-The redrawn paths are dense (``planner.drivable.STEP`` apart); ``envs.factory.build_course``
-thins them to the guide's ball spacing. Redrawing every sub-task costs about 0.1 s each, and
-every sub-task env of a mission redraws the same course, so results are cached per world.
-"""
+The redrawn paths are dense (``planner.geometry.drivable.STEP`` apart);
+``envs.factory.build_course`` thins them to the guide's ball spacing. Redrawing every sub-task
+costs about 0.1 s each, and every sub-task env of a mission redraws the same course, so results
+are cached per world."""
 
 from __future__ import annotations
 
@@ -24,9 +24,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from envs.handover import Pose, arrival_pose
-from planner.drivable import drivable_path
-from planner.dubins import Pose2
-from planner.world import World
+from planner.geometry.drivable import drivable_path
+from planner.geometry.dubins import Pose2
+from planner.geometry.world import World
 
 if TYPE_CHECKING:
     from planner.decompose import SubTask

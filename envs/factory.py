@@ -27,9 +27,9 @@ from envs.rewards import EnvConfigError, RegionTest, reward_mode
 from envs.robots import Robot, RobotConfigError, make_robot, robot_class, robot_params
 from envs.robots.racecar import WHEEL_RADIUS, RacecarParams
 from envs.spec import RobotSpec
-from planner.drivable import thin
+from planner.geometry.drivable import thin
+from planner.geometry.world import World
 from planner.guidance import Guide, ProgressTracker
-from planner.world import World
 
 if TYPE_CHECKING:
     from planner.decompose import SubTask

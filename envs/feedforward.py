@@ -33,7 +33,7 @@ import numpy as np
 from envs.observation import HEADING_FEATURES
 from envs.rewards import EnvConfigError
 from envs.robots.base import Robot, wrap_angle
-from planner.drivable import arc_lengths
+from planner.geometry.drivable import arc_lengths
 from planner.guidance import Guide
 
 if TYPE_CHECKING:
@@ -97,7 +97,7 @@ class Track:
     @classmethod
     def dense(cls, points: np.ndarray, balls: int) -> Track:
         """``points``, a dense path whose ``balls`` marks evenly spaced along it are the
-        guide's balls (``planner.drivable.thin``)."""
+        guide's balls (``planner.geometry.drivable.thin``)."""
         pts = np.asarray(points, dtype=float)
         along = arc_lengths(pts)
         total = float(along[-1])

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from envs.rewards import EnvConfigError, RegionTest
-from planner.world import World
+from planner.geometry.world import World
 
 if TYPE_CHECKING:
     from planner.decompose import SubTask

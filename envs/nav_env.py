@@ -54,9 +54,9 @@ from envs.rewards import (
     Stage,
 )
 from envs.robots import Robot
-from planner.automaton import Buchi
+from planner.geometry.world import World
 from planner.guidance import Guide, ProgressTracker
-from planner.world import World
+from planner.ltl.automaton import Buchi
 
 if TYPE_CHECKING:
     from envs.options import EnvOptions

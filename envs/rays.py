@@ -14,8 +14,8 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.shapes import Ball, Box, Polygon
-from planner.world import World
+from planner.geometry.shapes import Ball, Box, Polygon
+from planner.geometry.world import World
 
 Float32Array = NDArray[np.float32]
 FloatArray = NDArray[np.float64]

@@ -17,7 +17,7 @@ from matplotlib.patches import Circle, Rectangle
 from matplotlib.patches import Polygon as PolygonPatch
 
 from envs.observation import HEADING_FEATURES
-from planner.shapes import Ball, Box, Polygon, Shape
+from planner.geometry.shapes import Ball, Box, Polygon, Shape
 
 if TYPE_CHECKING:
     from envs.nav_env import NavEnv

@@ -35,9 +35,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from planner.automaton import Buchi
 from planner.errors import FieldError
-from planner.shapes import Ball, Box, Shape
+from planner.geometry.shapes import Ball, Box, Shape
+from planner.ltl.automaton import Buchi
 
 RUNNING = 0
 """Judge outcome: the episode goes on."""

@@ -27,9 +27,9 @@ from typing import Literal
 
 import numpy as np
 
-from planner.automaton import Buchi
-from planner.tl_rrt_star import Lasso
-from planner.world import World
+from planner.geometry.world import World
+from planner.ltl.automaton import Buchi
+from planner.search.tl_rrt_star import Lasso
 
 Phase = Literal["prefix", "suffix"]
 

@@ -2,7 +2,7 @@
 
 :func:`plan_mission` runs the whole planner pipeline: parse and check the formula, translate it
 to a Büchi automaton, prune the transitions this world can never produce (and those into
-regions :mod:`planner.reachability` proves enclosed away from the start), plan a lasso with
+regions :mod:`planner.search.reachability` proves enclosed away from the start), plan a lasso with
 TL-RRT* and decompose it. :func:`verify_plan` re-checks, independently of the planner's own
 bookkeeping, every invariant the plan promises (issue section 6); an empty list means valid.
 Times are CPU seconds (``time.process_time``): the machine is shared and wall time is noisy.
@@ -16,18 +16,18 @@ from typing import Any
 
 import numpy as np
 
-from planner.automaton import Buchi
 from planner.decompose import SubTask, decompose
 from planner.errors import PlanningError
-from planner.guard import Cube
-from planner.ltl import check_mission_formula, parse
-from planner.ltl_semantics import holds_on_lasso
-from planner.options import PlannerSpec
-from planner.prune import has_accepting_run, prune
-from planner.reachability import restrict_to_reachable
-from planner.tl_rrt_star import Lasso, default_eta, plan_lasso, unsatisfiable
-from planner.translate import translate
-from planner.world import World
+from planner.geometry.world import World
+from planner.ltl.automaton import Buchi
+from planner.ltl.formula import check_mission_formula, parse
+from planner.ltl.guard import Cube
+from planner.ltl.prune import has_accepting_run, prune
+from planner.ltl.semantics import holds_on_lasso
+from planner.ltl.translate import translate
+from planner.search.planner_spec import PlannerSpec
+from planner.search.reachability import restrict_to_reachable
+from planner.search.tl_rrt_star import Lasso, default_eta, plan_lasso, unsatisfiable
 
 
 @dataclass

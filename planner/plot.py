@@ -13,9 +13,9 @@ import numpy as np
 from matplotlib.patches import Circle, Rectangle
 from matplotlib.patches import Polygon as PolygonPatch
 
+from planner.geometry.shapes import Ball, Box, Polygon
+from planner.geometry.world import World
 from planner.guidance import Guide
-from planner.shapes import Ball, Box, Polygon
-from planner.world import World
 
 if TYPE_CHECKING:
     from planner.plan import MissionPlan

@@ -10,11 +10,11 @@ from typing import Any
 
 import numpy as np
 
-from planner.automaton import Buchi, Edge
 from planner.decompose import SubTask
-from planner.guard import Cube, Guard
+from planner.ltl.automaton import Buchi, Edge
+from planner.ltl.guard import Cube, Guard
 from planner.plan import MissionPlan
-from planner.tl_rrt_star import Lasso
+from planner.search.tl_rrt_star import Lasso
 
 
 def buchi_to_dict(nba: Buchi) -> dict[str, Any]:

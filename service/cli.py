@@ -12,8 +12,8 @@ import numpy as np
 import typer
 
 from planner.errors import LtlnavError, PlanningError
-from planner.ltl import parse
-from planner.translate import translate
+from planner.ltl.formula import parse
+from planner.ltl.translate import translate
 
 app = typer.Typer(
     name="ltlnav",

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from planner.ltl import atoms, parse
+from planner.ltl.formula import atoms, parse
 from workers.mission import MissionSpec, load_mission
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"

@@ -29,11 +29,11 @@ from matplotlib.patches import Polygon as PolygonPatch
 
 from envs.factory import subtask_guides
 from envs.options import EnvOptions
+from planner.geometry.shapes import Ball, Box, Polygon
+from planner.geometry.world import World
 from planner.plan import MissionPlan
 from planner.plot import plot_plan
 from planner.serialize import plan_to_dict
-from planner.shapes import Ball, Box, Polygon
-from planner.world import World
 from workers.evaluation import MissionEvaluation
 from workers.mission import MissionSpec
 from workers.policy import (

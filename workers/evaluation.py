@@ -27,8 +27,8 @@ from envs.nav_env import NavEnv
 from envs.options import EnvOptions
 from envs.rewards import RegionLabeler
 from envs.robots import Robot, make_robot
+from planner.geometry.world import World
 from planner.plan import MissionPlan
-from planner.world import World
 from workers.mission import MissionSpec
 
 Act = Callable[[np.ndarray], np.ndarray]

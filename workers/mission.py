@@ -1,12 +1,12 @@
 """The mission document: world, robot, task, planner and training options, validated as one model.
 
-``MissionSpec`` composes the sections owned by each layer (``planner.spec.WorldSpec``,
-``envs.spec.RobotSpec``, ``planner.options.PlannerSpec``) and adds the checks that need several
-sections at once: every label of the task exists in the world, the robot lives in the world's
-dimension, its start is free, and no goal region is buried in obstacles. ``parse_mission`` and
-``load_mission`` turn any failure into a ``MissionError`` listing every problem with its dotted
-path (``world.regions.g1.ball.radius: must be > 0``), the form the CLI prints and the API returns.
-"""
+``MissionSpec`` composes the sections owned by each layer
+(``planner.geometry.world_spec.WorldSpec``, ``envs.spec.RobotSpec``,
+``planner.search.planner_spec.PlannerSpec``) and adds the checks that need several sections at
+once: every label of the task exists in the world, the robot lives in the world's dimension, its
+start is free, and no goal region is buried in obstacles. ``parse_mission`` and ``load_mission``
+turn any failure into a ``MissionError`` listing every problem with its dotted path
+(``world.regions.g1.ball.radius: must be > 0``), the form the CLI prints and the API returns."""
 
 from __future__ import annotations
 
@@ -30,10 +30,10 @@ from pydantic_core import PydanticCustomError
 
 from envs.spec import RobotSpec
 from planner.errors import FormulaError, WorldError
-from planner.ltl import atoms, check_mission_formula, parse
-from planner.options import PlannerSpec
-from planner.spec import RESERVED_LABEL, WorldSpec, raise_problems
-from planner.world import World
+from planner.geometry.world import World
+from planner.geometry.world_spec import RESERVED_LABEL, WorldSpec, raise_problems
+from planner.ltl.formula import atoms, check_mission_formula, parse
+from planner.search.planner_spec import PlannerSpec
 from workers.mission_errors import MissionError, problems_from_validation_error, read_document
 from workers.training_spec import TrainingSpec
 

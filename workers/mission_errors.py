@@ -18,7 +18,7 @@ import yaml
 from pydantic import BaseModel, ValidationError
 
 from planner.errors import LtlnavError
-from planner.spec import PROBLEMS_ERROR, SHAPE_KINDS
+from planner.geometry.world_spec import PROBLEMS_ERROR, SHAPE_KINDS
 
 
 class MissionError(LtlnavError):

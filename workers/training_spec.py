@@ -28,7 +28,7 @@ from pydantic import (
 from envs.observation import HEADING_FEATURES
 from envs.options import EnvOptions
 from envs.rewards import REWARD_MODES, EnvConfigError, RewardConfig, reward_mode
-from planner.spec import raise_problems
+from planner.geometry.world_spec import raise_problems
 
 Algorithm = Literal["sac", "td3", "ddpg", "ppo"]
 RewardModeName = Literal["rrt", "rrt-paper", "g-rrt", "ned", "tl"]

@@ -19,7 +19,7 @@ from envs.robots.point import PointParams, PointRobot
 from envs.robots.quadrotor import Quadrotor, QuadrotorParams
 from envs.robots.racecar import Racecar, RacecarParams
 from envs.robots.unicycle import Unicycle, UnicycleParams
-from planner.world import World
+from planner.geometry.world import World
 
 ROBOT_MODELS: Mapping[str, type[Robot]] = {
     "unicycle": Unicycle,
@@ -79,7 +79,7 @@ def robot_params(model: str, params: Mapping[str, float] | None = None) -> Robot
 def make_robot(
     model: str, world: World, radius: float, params: Mapping[str, float] | None = None
 ) -> Robot:
-    """Build a ``model`` robot of ``radius`` in ``world`` (a ``planner.world.World``).
+    """Build a ``model`` robot of ``radius`` in ``world`` (a ``planner.geometry.world.World``).
 
     Raises ``RobotConfigError`` for an unknown model or parameter, a bad value, or a world whose
     dimension the model cannot move in. Call ``reset`` before stepping and ``close`` at the end.

@@ -22,8 +22,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.errors import FieldError
-from planner.shapes import Ball, Box, Shape
-from planner.world import World
+from planner.geometry.shapes import Ball, Box, Shape
+from planner.geometry.world import World
 
 FloatArray = NDArray[np.float64]
 Float32Array = NDArray[np.float32]

@@ -29,7 +29,7 @@ from typing import ClassVar
 import numpy as np
 
 from envs.robots.base import Float32Array, FloatArray, Robot, RobotParams
-from planner.world import World
+from planner.geometry.world import World
 
 
 @dataclass(frozen=True)

@@ -35,8 +35,8 @@ from typing import Any, ClassVar
 import numpy as np
 
 from envs.robots.base import Float32Array, FloatArray, Robot, RobotParams
-from planner.shapes import Ball, Box, Polygon
-from planner.world import World
+from planner.geometry.shapes import Ball, Box, Polygon
+from planner.geometry.world import World
 
 WHEEL_RADIUS = 0.05
 """Wheel radius of racecar.urdf in m."""

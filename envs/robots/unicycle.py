@@ -21,7 +21,7 @@ from typing import ClassVar
 import numpy as np
 
 from envs.robots.base import Float32Array, FloatArray, Robot, RobotParams, wrap_angle
-from planner.world import World
+from planner.geometry.world import World
 
 
 @dataclass(frozen=True)

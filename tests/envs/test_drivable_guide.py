@@ -20,12 +20,12 @@ from envs.options import EnvOptions
 from envs.rewards import EnvConfigError
 from envs.robots import robot_params
 from envs.spec import RobotSpec
-from planner.drivable import thin
+from planner.geometry.drivable import thin
+from planner.geometry.shapes import Ball, Box
+from planner.geometry.world import World
 from planner.guidance import Guide
-from planner.options import PlannerSpec
 from planner.plan import MissionPlan, plan_mission
-from planner.shapes import Ball, Box
-from planner.world import World
+from planner.search.planner_spec import PlannerSpec
 from tests.envs.test_nav_env import Mission, Prebuilt
 from tests.envs.test_scripted import CONTROLLERS, Pursuit
 

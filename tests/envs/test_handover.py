@@ -11,8 +11,8 @@ from envs.factory import make_env
 from envs.handover import INSIDE, Pose, arrival_pose, predecessors
 from envs.rewards import EnvConfigError
 from planner.decompose import SubTask
-from planner.shapes import Box
-from planner.world import World
+from planner.geometry.shapes import Box
+from planner.geometry.world import World
 from tests.envs.test_nav_env import FINITE, INFINITE, mission, planned
 
 

@@ -26,10 +26,10 @@ from envs.rewards import REWARD_MODES, EnvConfigError
 from envs.robots import RobotConfigError
 from envs.spec import RobotSpec
 from planner.decompose import SubTask
-from planner.options import PlannerSpec
+from planner.geometry.shapes import Ball, Box, Polygon
+from planner.geometry.world import World
 from planner.plan import MissionPlan, plan_mission
-from planner.shapes import Ball, Box, Polygon
-from planner.world import World
+from planner.search.planner_spec import PlannerSpec
 
 # ------------------------------------------------------------------------------ shared helpers
 CLEARANCE = 0.35

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from envs.rays import RayCaster
+from planner.geometry.shapes import Ball, Box, Polygon, Shape
+from planner.geometry.world import World
 from planner.guidance import Guide, ProgressTracker
-from planner.shapes import Ball, Box, Polygon, Shape
-from planner.world import World
 
 
 def random_world(dim: int, seed: int) -> World:

@@ -20,8 +20,8 @@ from envs.rewards import (
     reward_config,
     reward_mode,
 )
-from planner.shapes import Ball, Box, Polygon
-from planner.translate import translate
+from planner.geometry.shapes import Ball, Box, Polygon
+from planner.ltl.translate import translate
 from tests.envs.test_nav_env import mission, planned, world_2d
 
 

@@ -22,8 +22,8 @@ from envs.robots import (
 from envs.robots.quadrotor import Quadrotor
 from envs.robots.racecar import Racecar, prism, triangulate
 from envs.spec import RobotModel
-from planner.shapes import Ball, Box, Polygon
-from planner.world import World
+from planner.geometry.shapes import Ball, Box, Polygon
+from planner.geometry.world import World
 
 
 def world_2d() -> World:

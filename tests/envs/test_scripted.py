@@ -18,7 +18,7 @@ import pytest
 from envs.factory import make_env
 from envs.nav_env import NavEnv
 from envs.robots import Robot
-from planner.world import World
+from planner.geometry.world import World
 from tests.envs.test_nav_env import CLEARANCE, FINITE, INFINITE, ROBOT_IDS, ROBOTS, mission, planned
 
 

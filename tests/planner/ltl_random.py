@@ -5,7 +5,7 @@ from __future__ import annotations
 import random
 from collections.abc import Callable
 
-from planner.ltl import (
+from planner.ltl.formula import (
     And,
     Const,
     Eventually,

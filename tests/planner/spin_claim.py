@@ -17,8 +17,8 @@ from __future__ import annotations
 import re
 import subprocess
 
-from planner.automaton import Buchi, Edge
-from planner.guard import Guard
+from planner.ltl.automaton import Buchi, Edge
+from planner.ltl.guard import Guard
 
 _LABEL = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*):\s*$")
 _GOTO = re.compile(r"^::\s*(.*?)\s*->\s*goto\s+([A-Za-z_][A-Za-z0-9_]*)\s*$")

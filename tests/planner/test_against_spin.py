@@ -16,9 +16,9 @@ from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
-from planner.ltl import Formula, to_spin, to_text, uses_next
-from planner.ltl_semantics import holds_on_lasso
-from planner.translate import translate
+from planner.ltl.formula import Formula, to_spin, to_text, uses_next
+from planner.ltl.semantics import holds_on_lasso
+from planner.ltl.translate import translate
 from tests.planner.ltl_random import PROPS, random_formula, random_lasso
 from tests.planner.spin_claim import parse_claim, parse_condition, reachable_states, run_spin
 

@@ -8,9 +8,9 @@ import re
 
 import pytest
 
-from planner.automaton import Buchi, Edge
-from planner.guard import Cube, Guard, covers
-from planner.translate import translate
+from planner.ltl.automaton import Buchi, Edge
+from planner.ltl.guard import Cube, Guard, covers
+from planner.ltl.translate import translate
 from tests.planner.ltl_random import PROPS, random_formula, random_lasso
 from tests.planner.spin_claim import parse_condition
 

@@ -7,14 +7,14 @@ import itertools
 import numpy as np
 import pytest
 
-from planner.automaton import Buchi, Edge
 from planner.decompose import SubTask, decompose
-from planner.guard import Cube, Guard
-from planner.options import PlannerSpec
-from planner.shapes import Ball, Box
-from planner.tl_rrt_star import Lasso, make_lasso, plan_lasso
-from planner.translate import translate
-from planner.world import World
+from planner.geometry.shapes import Ball, Box
+from planner.geometry.world import World
+from planner.ltl.automaton import Buchi, Edge
+from planner.ltl.guard import Cube, Guard
+from planner.ltl.translate import translate
+from planner.search.planner_spec import PlannerSpec
+from planner.search.tl_rrt_star import Lasso, make_lasso, plan_lasso
 
 TRUE = Guard.TRUE
 

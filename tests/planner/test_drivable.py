@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from planner.drivable import STEP, drivable_path, thin, waypoints
-from planner.dubins import Pose2
-from planner.shapes import Ball, Box
-from planner.world import World
+from planner.geometry.drivable import STEP, drivable_path, thin, waypoints
+from planner.geometry.dubins import Pose2
+from planner.geometry.shapes import Ball, Box
+from planner.geometry.world import World
 
 LANE = np.array([[2.0, 2.0], [10.0, 2.0]])
 

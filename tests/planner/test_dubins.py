@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from planner.dubins import WORDS, Pose2, dubins_words
+from planner.geometry.dubins import WORDS, Pose2, dubins_words
 
 
 def _angle_gap(a: float, b: float) -> float:

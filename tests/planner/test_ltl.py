@@ -7,7 +7,7 @@ import random
 import pytest
 
 from planner.errors import FormulaError
-from planner.ltl import (
+from planner.ltl.formula import (
     And,
     Const,
     Eventually,
@@ -31,8 +31,8 @@ from planner.ltl import (
     to_text,
     uses_next,
 )
-from planner.ltl_rewrite import simplify
-from planner.ltl_semantics import holds_on_lasso
+from planner.ltl.rewrite import simplify
+from planner.ltl.semantics import holds_on_lasso
 from tests.planner.ltl_random import random_formula, random_lasso
 
 a, b, c = Prop("a"), Prop("b"), Prop("c")

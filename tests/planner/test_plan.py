@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from planner.errors import FormulaError, PlanningError
-from planner.options import PlannerSpec
+from planner.geometry.shapes import Ball, Box, Polygon
+from planner.geometry.world import World
 from planner.plan import MissionPlan, plan_mission, translate_task, verify_plan
-from planner.shapes import Ball, Box, Polygon
-from planner.tl_rrt_star import plan_lasso
-from planner.world import World
+from planner.search.planner_spec import PlannerSpec
+from planner.search.tl_rrt_star import plan_lasso
 
 
 def reference_world() -> World:

@@ -5,9 +5,9 @@ from __future__ import annotations
 import itertools
 import random
 
-from planner.guard import Cube
-from planner.prune import has_accepting_run, prune
-from planner.translate import translate
+from planner.ltl.guard import Cube
+from planner.ltl.prune import has_accepting_run, prune
+from planner.ltl.translate import translate
 
 L = frozenset
 GOALS = ("g1", "g2", "g3")

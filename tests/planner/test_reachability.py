@@ -10,12 +10,12 @@ import pytest
 from scipy.spatial import cKDTree
 
 from planner.errors import PlanningError
-from planner.options import PlannerSpec
+from planner.geometry.shapes import Ball, Box, Polygon, Shape
+from planner.geometry.world import World
+from planner.ltl.translate import translate
 from planner.plan import plan_mission, verify_plan
-from planner.reachability import restrict_to_reachable, unreachable_regions
-from planner.shapes import Ball, Box, Polygon, Shape
-from planner.translate import translate
-from planner.world import World
+from planner.search.planner_spec import PlannerSpec
+from planner.search.reachability import restrict_to_reachable, unreachable_regions
 from workers.mission import load_mission
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from planner.errors import PlanningError, WorldError
-from planner.rrt_star import RRTStar
-from planner.shapes import Ball, Box, Shape
-from planner.world import World
+from planner.geometry.shapes import Ball, Box, Shape
+from planner.geometry.world import World
+from planner.search.rrt_star import RRTStar
 
 START = np.array([-9.0, -9.0])
 CLEARANCE = 0.2

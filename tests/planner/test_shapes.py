@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from planner.shapes import Ball, Box, Polygon, Shape, segment_box_sqdist
+from planner.geometry.shapes import Ball, Box, Polygon, Shape, segment_box_sqdist
 
 RESOLUTION = 2001  # points sampled along every segment by the brute-force checks
 

@@ -9,10 +9,10 @@ import pytest
 from pydantic import ValidationError
 
 from planner.errors import WorldError
-from planner.obstacle_generator import boxes_distance_to, generate_boxes
-from planner.shapes import Ball, Box, Polygon
-from planner.spec import PolygonSpec, WorldSpec
-from planner.world import World
+from planner.geometry.random_obstacles import boxes_distance_to, generate_boxes
+from planner.geometry.shapes import Ball, Box, Polygon
+from planner.geometry.world import World
+from planner.geometry.world_spec import PolygonSpec, WorldSpec
 
 BOUNDS = [[-10.0, 10.0], [-10.0, 10.0]]
 

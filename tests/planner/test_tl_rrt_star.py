@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 
 from planner.errors import PlanningError
-from planner.ltl import parse
-from planner.ltl_semantics import holds_on_lasso
-from planner.options import PlannerSpec
-from planner.product_labels import LabelOracle
-from planner.shapes import Ball, Box, Polygon
-from planner.tl_rrt_star import Lasso, path_length, plan_lasso
-from planner.translate import translate
-from planner.world import World
+from planner.geometry.labels import LabelOracle
+from planner.geometry.shapes import Ball, Box, Polygon
+from planner.geometry.world import World
+from planner.ltl.formula import parse
+from planner.ltl.semantics import holds_on_lasso
+from planner.ltl.translate import translate
+from planner.search.planner_spec import PlannerSpec
+from planner.search.tl_rrt_star import Lasso, path_length, plan_lasso
 
 
 def world_2d() -> World:

@@ -8,9 +8,9 @@ import time
 import pytest
 
 from planner.errors import FormulaError
-from planner.ltl import parse, to_text
-from planner.ltl_semantics import holds_on_lasso
-from planner.translate import translate
+from planner.ltl.formula import parse, to_text
+from planner.ltl.semantics import holds_on_lasso
+from planner.ltl.translate import translate
 from tests.planner.ltl_random import random_formula, random_lasso
 
 L = frozenset

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from planner.errors import WorldError
-from planner.shapes import Ball, Box, Polygon, Shape
-from planner.world import World
+from planner.geometry.shapes import Ball, Box, Polygon, Shape
+from planner.geometry.world import World
 
 
 def mixed_world() -> World:

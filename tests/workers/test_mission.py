@@ -15,7 +15,7 @@ import yaml
 
 from envs.spec import RobotSpec
 from planner.errors import LtlnavError
-from planner.options import PlannerSpec
+from planner.search.planner_spec import PlannerSpec
 from workers.mission import MissionError, MissionSpec, load_mission, parse_mission
 
 BASE: dict[str, Any] = {

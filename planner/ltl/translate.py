@@ -1,21 +1,21 @@
 """LTL to Büchi automaton translation (Gastin and Oddoux, CAV 2001, with symbolic guards).
 
-Pipeline: parse -> negation normal form -> rewriting (:mod:`planner.ltl_rewrite`) ->
-very weak alternating automaton (:mod:`planner.vwaa`) -> degeneralized Büchi automaton
-through an implicit generalized Büchi automaton (:mod:`planner.gba`) -> simulation-based
-reduction (:mod:`planner.ba_reduce`). Guards stay DNF cubes throughout; no step enumerates
+Pipeline: parse -> negation normal form -> rewriting (:mod:`planner.ltl.rewrite`) ->
+very weak alternating automaton (:mod:`planner.ltl.vwaa`) -> degeneralized Büchi automaton
+through an implicit generalized Büchi automaton (:mod:`planner.ltl.gba`) -> simulation-based
+reduction (:mod:`planner.ltl.reduce`). Guards stay DNF cubes throughout; no step enumerates
 the 2^|AP| letters.
 """
 
 from __future__ import annotations
 
-from planner.automaton import Buchi, Edge
-from planner.ba_reduce import reduce_buchi
-from planner.gba import Degeneralizer, RawBuchi
-from planner.guard import Guard
-from planner.ltl import Formula, atoms, parse, to_nnf
-from planner.ltl_rewrite import simplify
-from planner.vwaa import build_vwaa
+from planner.ltl.automaton import Buchi, Edge
+from planner.ltl.formula import Formula, atoms, parse, to_nnf
+from planner.ltl.gba import Degeneralizer, RawBuchi
+from planner.ltl.guard import Guard
+from planner.ltl.reduce import reduce_buchi
+from planner.ltl.rewrite import simplify
+from planner.ltl.vwaa import build_vwaa
 
 
 def translate(formula: Formula | str) -> Buchi:

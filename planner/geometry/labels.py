@@ -18,8 +18,8 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from planner.shapes import Ball, Box, Polygon
-from planner.world import World
+from planner.geometry.shapes import Ball, Box, Polygon
+from planner.geometry.world import World
 
 _MAX_INT_BITS = 62
 

@@ -14,9 +14,9 @@ and finally states that are unreachable or cannot reach an accepting cycle go.
 
 from __future__ import annotations
 
-from planner.automaton import nodes_on_cycles
-from planner.gba import RawBuchi, add_cube
-from planner.guard import Cube, covers
+from planner.ltl.automaton import nodes_on_cycles
+from planner.ltl.gba import RawBuchi, add_cube
+from planner.ltl.guard import Cube, covers
 
 SIMULATION_BUDGET = 150_000
 """Largest ``states x cubes`` for which the quadratic simulation is computed (~0.5 s)."""

@@ -1,4 +1,4 @@
-"""Tokenizer and recursive-descent parser for LTL formulas (see :mod:`planner.ltl`).
+"""Tokenizer and recursive-descent parser for LTL formulas (see :mod:`planner.ltl.formula`).
 
 Precedence, tightest first: unary ``! X G F [] <>``; binary temporal ``U R V W``
 (right-associative); ``&&``; ``||``; ``->`` (right-associative); ``<->``
@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from typing import NoReturn
 
 from planner.errors import FormulaError
-from planner.ltl import (
+from planner.ltl.formula import (
     And,
     Const,
     Eventually,

@@ -21,8 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from planner.guard import Cube
-from planner.ltl import (
+from planner.ltl.formula import (
     And,
     Const,
     Eventually,
@@ -37,6 +36,7 @@ from planner.ltl import (
     WeakUntil,
     to_text,
 )
+from planner.ltl.guard import Cube
 
 Term = tuple[Cube, frozenset[int]]
 

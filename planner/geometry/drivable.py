@@ -1,16 +1,15 @@
 """Drivable guides: a sub-task's polyline redrawn as a path a car can follow.
 
-TL-RRT* plans polylines for a point. A car that only drives forward and turns no tighter than
-a radius ``rho`` cannot follow a polyline's corners, least of all where the lasso leaves a
-region the way it came in: the mission hands the car over facing into the region and the
-polyline turns back on itself. :func:`drivable_path` redraws the polyline from the car's real
-start pose as a chain of Dubins paths (:mod:`planner.dubins`) through waypoints taken along the
-polyline (one every ``spacing``, and every corner, each facing along the polyline), choosing
-by dynamic programming the shortest chain that ends at the polyline's last point. Each Dubins
-piece must keep ``clearance`` from the obstacles and the bounds, and may meet only regions the
-polyline (or the start) already meets, so the redrawn path produces no label the plan did not.
-A U-turn becomes a loop of radius ``rho`` wherever there is room for one.
-"""
+TL-RRT* plans polylines for a point. A car that only drives forward and turns no tighter than a
+radius ``rho`` cannot follow a polyline's corners, least of all where the lasso leaves a region
+the way it came in: the mission hands the car over facing into the region and the polyline turns
+back on itself. :func:`drivable_path` redraws the polyline from the car's real start pose as a
+chain of Dubins paths (:mod:`planner.geometry.dubins`) through waypoints taken along the
+polyline (one every ``spacing``, and every corner, each facing along the polyline), choosing by
+dynamic programming the shortest chain that ends at the polyline's last point. Each Dubins piece
+must keep ``clearance`` from the obstacles and the bounds, and may meet only regions the
+polyline (or the start) already meets, so the redrawn path produces no label the plan did not. A
+U-turn becomes a loop of radius ``rho`` wherever there is room for one."""
 
 from __future__ import annotations
 
@@ -20,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.dubins import DubinsPath, Pose2, dubins_words
-from planner.world import World
+from planner.geometry.dubins import DubinsPath, Pose2, dubins_words
+from planner.geometry.world import World
 
 STEP = 0.05
 """Spacing (m) of the points a Dubins piece is checked and drawn with."""

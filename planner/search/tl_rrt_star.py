@@ -2,7 +2,7 @@
 
 After Luo, Kantaros and Zavlanos, "An abstraction-free method for multirobot planning with
 temporal logic tasks" (T-RO 2021). A prefix tree rooted at ``(start, q)`` grows by RRT* in the
-product space (:mod:`planner.product_tree`) until it holds nodes whose automaton state is
+product space (:mod:`planner.search.product_tree`) until it holds nodes whose automaton state is
 accepting and lies on an automaton cycle. For such a node ``(x*, q*)`` a suffix tree rooted at
 it grows until one of its nodes can step back to ``(x*, q*)``; the lasso is the prefix branch
 followed by that cycle. When ``q*`` loops on the label of ``x*`` (always for a co-safe task,
@@ -17,7 +17,7 @@ uniform free point from the nearest node of any state.
 Anytime: once a first lasso exists the trees keep growing for ``refine_seconds`` CPU seconds
 (RRT* rewiring shortens branches; more accepting nodes and cycles appear) and the cheapest
 lasso ``prefix_weight * prefix + (1 - prefix_weight) * suffix`` is kept; with ``shortcut`` it
-is then shortened by :mod:`planner.shortcut`, which keeps it a valid product run.
+is then shortened by :mod:`planner.search.shortcut`, which keeps it a valid product run.
 """
 
 from __future__ import annotations
@@ -28,14 +28,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planner.automaton import Buchi
 from planner.errors import PlanningError
-from planner.options import PlannerSpec
-from planner.product_labels import LabelOracle
-from planner.product_tree import ProductTree
-from planner.sampling import Realisable, Sampler, Stepper
-from planner.shortcut import LassoRun, polish
-from planner.world import World
+from planner.geometry.labels import LabelOracle
+from planner.geometry.world import World
+from planner.ltl.automaton import Buchi
+from planner.search.planner_spec import PlannerSpec
+from planner.search.product_sampling import Realisable, Sampler, Stepper
+from planner.search.product_tree import ProductTree
+from planner.search.shortcut import LassoRun, polish
 
 
 @dataclass

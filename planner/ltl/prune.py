@@ -10,10 +10,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from planner.automaton import Buchi, Edge
-from planner.ba_reduce import trim
-from planner.gba import RawBuchi
-from planner.guard import Cube, Guard
+from planner.ltl.automaton import Buchi, Edge
+from planner.ltl.gba import RawBuchi
+from planner.ltl.guard import Cube, Guard
+from planner.ltl.reduce import trim
 
 
 def prune(nba: Buchi, realisable: Callable[[Cube], bool]) -> Buchi:

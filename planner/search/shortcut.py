@@ -25,9 +25,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from planner.product_labels import LabelOracle
-from planner.product_tree import Successors, edges_ok
-from planner.world import World
+from planner.geometry.labels import LabelOracle
+from planner.geometry.world import World
+from planner.search.product_tree import Successors, edges_ok
 
 
 @dataclass(frozen=True)

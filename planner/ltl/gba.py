@@ -20,8 +20,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from planner.guard import Cube, covers
-from planner.vwaa import Vwaa
+from planner.ltl.guard import Cube, covers
+from planner.ltl.vwaa import Vwaa
 
 BaState = tuple[frozenset[int], int]
 

@@ -260,7 +260,7 @@ def parse(text: str) -> Formula:
     Raises :class:`FormulaError` with the 1-based column of the problem and what the parser
     expected there.
     """
-    from planner.ltl_parser import Parser
+    from planner.ltl.parser import Parser
 
     return Parser(text).parse()
 
@@ -276,7 +276,7 @@ def check_mission_formula(f: Formula, text: str = "") -> None:
         return
     column = None
     if text:
-        from planner.ltl_parser import tokenize
+        from planner.ltl.parser import tokenize
 
         for token in tokenize(text):
             if token.kind == "X":

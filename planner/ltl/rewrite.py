@@ -9,7 +9,7 @@ each ``G F`` its own acceptance condition, which is what keeps them cheap.
 
 from __future__ import annotations
 
-from planner.ltl import (
+from planner.ltl.formula import (
     FALSE,
     TRUE,
     And,

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from planner.errors import WorldError
-from planner.shapes import Ball, Box, Polygon
+from planner.geometry.shapes import Ball, Box, Polygon
 
 BATCH = 256
 """Candidates drawn per round; fixed so the boxes depend on the seed only."""

@@ -27,9 +27,9 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
-from planner.obstacle_generator import generate_boxes
-from planner.shapes import Ball, Box, Polygon, Shape
-from planner.world import World
+from planner.geometry.random_obstacles import generate_boxes
+from planner.geometry.shapes import Ball, Box, Polygon, Shape
+from planner.geometry.world import World
 
 LABEL_PATTERN = re.compile(r"[a-z_][a-z0-9_]*")
 RESERVED_LABEL = "obstacle"
@@ -146,8 +146,8 @@ class BallSpec(_Spec):
 def _simple_polygon(vertices: list[list[float]]) -> list[list[float]]:
     """Check that the vertices describe a simple 2D polygon; a repeated closing vertex is dropped.
 
-    Simplicity is decided by ``planner.shapes.Polygon`` itself, so a polygon accepted here is
-    always accepted when the world is built.
+    Simplicity is decided by ``planner.geometry.shapes.Polygon`` itself, so a polygon accepted
+    here is always accepted when the world is built.
     """
     for i, v in enumerate(vertices):
         if len(v) != 2:

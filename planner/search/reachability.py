@@ -27,11 +27,8 @@ from collections.abc import Iterable
 import numpy as np
 from scipy import ndimage
 
-from planner.automaton import Buchi
 from planner.errors import PlanningError
-from planner.guard import Cube
-from planner.prune import has_accepting_run, prune
-from planner.shapes import (
+from planner.geometry.shapes import (
     Ball,
     BoolArray,
     Box,
@@ -41,7 +38,10 @@ from planner.shapes import (
     box_sqdist,
     segment_point_sqdist,
 )
-from planner.world import World
+from planner.geometry.world import World
+from planner.ltl.automaton import Buchi
+from planner.ltl.guard import Cube
+from planner.ltl.prune import has_accepting_run, prune
 
 MAX_CELLS = 250_000
 """Default grid size: the cell edge is chosen so the grid over the bounds has about this many."""

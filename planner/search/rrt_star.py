@@ -22,8 +22,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from planner.errors import PlanningError
-from planner.shapes import BoolArray, FloatArray, as_points
-from planner.world import World
+from planner.geometry.shapes import BoolArray, FloatArray, as_points
+from planner.geometry.world import World
 
 GoalPredicate = Callable[[FloatArray], BoolArray]
 

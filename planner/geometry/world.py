@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.errors import WorldError
-from planner.shapes import (
+from planner.geometry.shapes import (
     SEGMENT_TOL,
     Ball,
     BoolArray,

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
-from planner.ltl import (
+from planner.ltl.formula import (
     And,
     Const,
     Eventually,

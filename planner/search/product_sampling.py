@@ -14,10 +14,10 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from planner.automaton import Buchi
-from planner.guard import Cube
-from planner.product_labels import LabelOracle
-from planner.world import World
+from planner.geometry.labels import LabelOracle
+from planner.geometry.world import World
+from planner.ltl.automaton import Buchi
+from planner.ltl.guard import Cube
 
 
 class Stepper:

@@ -24,8 +24,8 @@ from collections.abc import Callable
 import numpy as np
 from scipy.spatial import cKDTree
 
-from planner.product_labels import LabelOracle
-from planner.world import World
+from planner.geometry.labels import LabelOracle
+from planner.geometry.world import World
 
 Successors = Callable[[int, int], tuple[int, ...]]
 

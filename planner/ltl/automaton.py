@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from functools import cached_property
 from typing import Any, TypeVar
 
-from planner.guard import Cube, Guard
+from planner.ltl.guard import Cube, Guard
 
 N = TypeVar("N", bound=Hashable)
 

@@ -1,0 +1,2 @@
+"""LTL formulas to Büchi automata: parsing, rewriting, translation (Gastin-Oddoux), reduction,
+pruning and direct semantics on lassos."""
