@@ -23,9 +23,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from envs.handover import Pose, arrival_pose
+from envs.handover import arrival_pose
 from planner.geometry.drivable import drivable_path
-from planner.geometry.dubins import Pose2
+from planner.geometry.pose import Pose
 from planner.geometry.world import World
 
 if TYPE_CHECKING:
@@ -76,8 +76,7 @@ def redraw_course(
         sub = subtasks[k]
         path = None
         for clearance in clearance_steps:
-            origin = Pose2(float(pose.position[0]), float(pose.position[1]), pose.heading)
-            path = drivable_path(world, np.asarray(sub.path, dtype=float), origin, rho, clearance)
+            path = drivable_path(world, np.asarray(sub.path, dtype=float), pose, rho, clearance)
             if path is not None:
                 break
         if path is not None:

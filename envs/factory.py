@@ -20,7 +20,7 @@ import numpy as np
 
 from envs.drivable import clearances, redraw_course
 from envs.feedforward import Track
-from envs.handover import Pose, checked_starts, handover_poses
+from envs.handover import checked_starts, handover_poses
 from envs.nav_env import Leg, NavEnv
 from envs.options import EnvOptions, options_with
 from envs.rewards import EnvConfigError, RegionTest, reward_mode
@@ -28,6 +28,7 @@ from envs.robots import Robot, RobotConfigError, make_robot, robot_class, robot_
 from envs.robots.racecar import WHEEL_RADIUS, RacecarParams
 from envs.spec import RobotSpec
 from planner.geometry.drivable import thin
+from planner.geometry.pose import Pose
 from planner.geometry.world import World
 from planner.guidance import Guide, ProgressTracker
 

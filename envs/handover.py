@@ -19,12 +19,12 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from envs.rewards import EnvConfigError, RegionTest
+from planner.geometry.pose import Pose
 from planner.geometry.world import World
 
 if TYPE_CHECKING:
@@ -34,14 +34,6 @@ STEP = 0.02
 """Spacing (m) of the points tried along a guide for the first one inside its goal region."""
 INSIDE = 0.05
 """How far (m) past the region's boundary the arrival point is taken, so it is inside."""
-
-
-@dataclass(frozen=True)
-class Pose:
-    """A start pose: workspace point and yaw."""
-
-    position: np.ndarray
-    heading: float
 
 
 def predecessors(subtasks: Sequence[SubTask], k: int) -> list[int | None]:

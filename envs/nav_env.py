@@ -38,7 +38,6 @@ import numpy as np
 from gymnasium import spaces
 
 from envs.feedforward import ActionShaping, Track
-from envs.handover import Pose
 from envs.observation import ObservationBuilder
 from envs.potential import GuidePotential
 from envs.rays import RayCaster
@@ -54,6 +53,7 @@ from envs.rewards import (
     Stage,
 )
 from envs.robots import Robot
+from planner.geometry.pose import Pose
 from planner.geometry.world import World
 from planner.guidance import Guide, ProgressTracker
 from planner.ltl.automaton import Buchi

@@ -22,11 +22,11 @@ import numpy as np
 from gymnasium import spaces
 
 from envs.factory import make_env
-from envs.handover import Pose
 from envs.nav_env import NavEnv
 from envs.options import EnvOptions
 from envs.rewards import RegionLabeler
 from envs.robots import Robot, make_robot
+from planner.geometry.pose import Pose
 from planner.geometry.world import World
 from planner.plan import MissionPlan
 from workers.mission import MissionSpec

@@ -19,7 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.geometry.dubins import DubinsPath, Pose2, dubins_words
+from planner.geometry.dubins import DubinsPath, dubins_words
+from planner.geometry.pose import Pose
 from planner.geometry.world import World
 
 STEP = 0.05
@@ -30,7 +31,7 @@ STEP = 0.05
 class Waypoint:
     """A pose on the polyline and the polyline length before it."""
 
-    pose: Pose2
+    pose: Pose
     along: float
 
 
@@ -43,7 +44,7 @@ def waypoints(path: np.ndarray, spacing: float) -> list[Waypoint]:
         if float(np.hypot(*(p - pts[-1]))) > 1e-9:
             pts.append(p)
     if len(pts) < 2:
-        return [Waypoint(Pose2(float(pts[0][0]), float(pts[0][1]), 0.0), 0.0)]
+        return [Waypoint(Pose(pts[0], 0.0), 0.0)]
     units = [(b - a) / float(np.hypot(*(b - a))) for a, b in itertools.pairwise(pts)]
     out: list[Waypoint] = []
     along = 0.0
@@ -51,11 +52,11 @@ def waypoints(path: np.ndarray, spacing: float) -> list[Waypoint]:
         length = float(np.hypot(*(b - a)))
         heading = math.atan2(float(units[k][1]), float(units[k][0]))
         if k == 0:
-            out.append(Waypoint(Pose2(float(a[0]), float(a[1]), heading), 0.0))
+            out.append(Waypoint(Pose(a, heading), 0.0))
         pieces = max(1, math.ceil(length / spacing - 1e-9))
         for i in range(1, pieces):
             p = a + (b - a) * (i / pieces)
-            pose = Pose2(float(p[0]), float(p[1]), heading)
+            pose = Pose(p, heading)
             out.append(Waypoint(pose, along + length * i / pieces))
         along += length
         if k + 1 < len(units):
@@ -63,7 +64,7 @@ def waypoints(path: np.ndarray, spacing: float) -> list[Waypoint]:
             if float(np.hypot(*mean)) < 1e-9:
                 mean = units[k + 1]
             heading = math.atan2(float(mean[1]), float(mean[0]))
-        out.append(Waypoint(Pose2(float(b[0]), float(b[1]), heading), along))
+        out.append(Waypoint(Pose(b, heading), along))
     return out
 
 
@@ -95,7 +96,7 @@ def allowed_regions(world: World, path: np.ndarray, start: np.ndarray) -> np.nda
 def drivable_path(
     world: World,
     path: np.ndarray,
-    start: Pose2,
+    start: Pose,
     rho: float,
     clearance: float,
     *,
@@ -115,13 +116,15 @@ def drivable_path(
     poly = np.asarray(path, dtype=float)
     nodes = waypoints(poly, spacing or rho)
     span = reach if reach is not None else 6.0 * rho
-    checker = _Checker(world, clearance, allowed_regions(world, poly, np.array([start.x, start.y])))
+    checker = _Checker(
+        world, clearance, allowed_regions(world, poly, np.asarray(start.position, dtype=float))
+    )
     count = len(nodes)
     cost = [math.inf] * count
     parent = [-2] * count
     pieces: list[np.ndarray | None] = [None] * count
 
-    def relax(source: int, origin: Pose2, base: float, lo: float) -> None:
+    def relax(source: int, origin: Pose, base: float, lo: float) -> None:
         for j in range(count):
             if nodes[j].along < lo or nodes[j].along > lo + span:
                 continue

@@ -17,18 +17,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from planner.geometry.pose import Pose
+
 TWO_PI = 2.0 * math.pi
 WORDS = ("LSL", "RSR", "LSR", "RSL", "RLR", "LRL")
 """The six Dubins words."""
-
-
-@dataclass(frozen=True)
-class Pose2:
-    """A planar pose: position ``(x, y)`` and heading ``theta`` (radians, counter-clockwise)."""
-
-    x: float
-    y: float
-    theta: float
 
 
 @dataclass(frozen=True)
@@ -37,7 +30,7 @@ class DubinsPath:
     ``word[k]`` runs ``segments[k]`` radians of arc (L, R) or ``segments[k] * rho`` metres of
     line (S)."""
 
-    start: Pose2
+    start: Pose
     word: str
     segments: tuple[float, float, float]
     rho: float
@@ -47,12 +40,12 @@ class DubinsPath:
         """Path length in metres."""
         return self.rho * sum(self.segments)
 
-    def end(self) -> Pose2:
+    def end(self) -> Pose:
         """The pose at the end of the path."""
-        x, y, theta = self.start.x, self.start.y, self.start.theta
+        x, y, theta = _unpack(self.start)
         for kind, t in zip(self.word, self.segments, strict=True):
             x, y, theta = _advance(kind, t * self.rho, self.rho, x, y, theta)
-        return Pose2(x, y, _wrap(theta))
+        return Pose(np.array([x, y]), _wrap(theta))
 
     def sample(self, step: float) -> tuple[np.ndarray, np.ndarray]:
         """Points ``(n, 2)`` and headings ``(n,)`` every ``step`` metres of arc length or less,
@@ -63,7 +56,7 @@ class DubinsPath:
         s = np.linspace(0.0, self.length, count + 1)
         points = np.empty((len(s), 2))
         headings = np.empty(len(s))
-        x, y, theta = self.start.x, self.start.y, self.start.theta
+        x, y, theta = _unpack(self.start)
         begin = 0.0
         for k, (kind, t) in enumerate(zip(self.word, self.segments, strict=True)):
             span = t * self.rho
@@ -76,16 +69,18 @@ class DubinsPath:
         return points, headings
 
 
-def dubins_words(start: Pose2, goal: Pose2, rho: float) -> list[DubinsPath]:
+def dubins_words(start: Pose, goal: Pose, rho: float) -> list[DubinsPath]:
     """Every feasible Dubins word from ``start`` to ``goal`` with turning radius ``rho``,
     shortest first (at most six; LSL and RSR always exist)."""
     if not rho > 0:
         raise ValueError("the turning radius must be > 0")
-    dx, dy = goal.x - start.x, goal.y - start.y
+    x0, y0, theta0 = _unpack(start)
+    x1, y1, theta1 = _unpack(goal)
+    dx, dy = x1 - x0, y1 - y0
     d = math.hypot(dx, dy) / rho
     phi = math.atan2(dy, dx) if d > 0 else 0.0
-    alpha = _mod(start.theta - phi)
-    beta = _mod(goal.theta - phi)
+    alpha = _mod(theta0 - phi)
+    beta = _mod(theta1 - phi)
     found: list[DubinsPath] = []
     for word in WORDS:
         segments = _SOLVERS[word](alpha, beta, d)
@@ -93,6 +88,11 @@ def dubins_words(start: Pose2, goal: Pose2, rho: float) -> list[DubinsPath]:
             found.append(DubinsPath(start, word, segments, rho))
     found.sort(key=lambda p: p.length)
     return found
+
+
+def _unpack(pose: Pose) -> tuple[float, float, float]:
+    """``(x, y, heading)`` of a planar pose as floats."""
+    return float(pose.position[0]), float(pose.position[1]), float(pose.heading)
 
 
 def _mod(angle: float) -> float:

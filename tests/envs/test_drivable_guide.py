@@ -15,12 +15,13 @@ import pytest
 from envs.drivable import clearances, redraw_course
 from envs.factory import make_env
 from envs.feedforward import Track, pursuit_target, pursuit_turn
-from envs.handover import Pose, arrival_pose
+from envs.handover import arrival_pose
 from envs.options import EnvOptions
 from envs.rewards import EnvConfigError
 from envs.robots import robot_params
 from envs.spec import RobotSpec
 from planner.geometry.drivable import thin
+from planner.geometry.pose import Pose
 from planner.geometry.shapes import Ball, Box
 from planner.geometry.world import World
 from planner.guidance import Guide

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from envs.factory import make_env
-from envs.handover import INSIDE, Pose, arrival_pose, predecessors
+from envs.handover import INSIDE, arrival_pose, predecessors
 from envs.rewards import EnvConfigError
 from planner.decompose import SubTask
+from planner.geometry.pose import Pose
 from planner.geometry.shapes import Box
 from planner.geometry.world import World
 from tests.envs.test_nav_env import FINITE, INFINITE, mission, planned

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from planner.geometry.drivable import STEP, drivable_path, thin, waypoints
-from planner.geometry.dubins import Pose2
+from planner.geometry.pose import Pose
 from planner.geometry.shapes import Ball, Box
 from planner.geometry.world import World
 
@@ -29,7 +29,7 @@ def _turns(points: np.ndarray) -> np.ndarray:
 
 
 def test_a_start_facing_along_a_straight_polyline_keeps_it() -> None:
-    path = drivable_path(_world(), LANE, Pose2(2.0, 2.0, 0.0), rho=1.0, clearance=0.3)
+    path = drivable_path(_world(), LANE, Pose(np.array([2.0, 2.0]), 0.0), rho=1.0, clearance=0.3)
     assert path is not None
     np.testing.assert_allclose(path[0], [2.0, 2.0])
     np.testing.assert_allclose(path[-1], [10.0, 2.0])
@@ -39,7 +39,7 @@ def test_a_start_facing_along_a_straight_polyline_keeps_it() -> None:
 
 def test_a_start_facing_away_turns_round_on_a_loop_of_the_radius() -> None:
     world = _world()
-    path = drivable_path(world, LANE, Pose2(2.0, 2.0, math.pi), rho=1.0, clearance=0.3)
+    path = drivable_path(world, LANE, Pose(np.array([2.0, 2.0]), math.pi), rho=1.0, clearance=0.3)
     assert path is not None
     length = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
     assert length >= 8.0 + math.pi * 1.0 - 0.1  # at least a half circle more than the lane
@@ -52,35 +52,40 @@ def test_a_start_facing_away_turns_round_on_a_loop_of_the_radius() -> None:
 def test_the_loop_avoids_obstacles() -> None:
     below = Box(np.array([-2.0, -2.0]), np.array([4.0, 1.2]))
     world = _world([below])
-    path = drivable_path(world, LANE, Pose2(2.0, 2.0, math.pi), rho=1.0, clearance=0.3)
+    path = drivable_path(world, LANE, Pose(np.array([2.0, 2.0]), math.pi), rho=1.0, clearance=0.3)
     assert path is not None and path[:, 1].max() > 3.0  # round the top: the box is below
     assert not world.in_collision(path, 0.3).any()
 
 
 def test_the_loop_meets_no_region_the_polyline_does_not_meet() -> None:
-    free = drivable_path(_world(), LANE, Pose2(2.0, 2.0, math.pi), rho=1.0, clearance=0.3)
+    free = drivable_path(
+        _world(), LANE, Pose(np.array([2.0, 2.0]), math.pi), rho=1.0, clearance=0.3
+    )
     assert free is not None and free[:, 1].min() < 1.0  # left alone it loops round the bottom
     regions = {"far": Ball(np.array([10.0, 2.0]), 0.8), "off": Ball(np.array([1.0, 1.0]), 0.5)}
     world = World(np.array([[-2.0, 12.0], [-2.0, 6.0]]), [], regions)
-    path = drivable_path(world, LANE, Pose2(2.0, 2.0, math.pi), rho=1.0, clearance=0.3)
+    path = drivable_path(world, LANE, Pose(np.array([2.0, 2.0]), math.pi), rho=1.0, clearance=0.3)
     assert path is not None and path[:, 1].max() > 3.0
     assert not world.label_matrix(path)[:, world.region_names.index("off")].any()
 
 
 def test_no_room_to_turn_gives_none() -> None:
     narrow = World(np.array([[-2.0, 12.0], [1.0, 3.0]]), [], {})
-    assert drivable_path(narrow, LANE, Pose2(2.0, 2.0, math.pi), rho=1.5, clearance=0.3) is None
+    assert (
+        drivable_path(narrow, LANE, Pose(np.array([2.0, 2.0]), math.pi), rho=1.5, clearance=0.3)
+        is None
+    )
     with pytest.raises(ValueError, match="turning radius"):
-        drivable_path(narrow, LANE, Pose2(2.0, 2.0, 0.0), rho=0.0, clearance=0.3)
+        drivable_path(narrow, LANE, Pose(np.array([2.0, 2.0]), 0.0), rho=0.0, clearance=0.3)
 
 
 def test_waypoints_face_along_the_polyline_and_thin_keeps_the_ends() -> None:
     corner = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [2.0, 2.0]])
     points = waypoints(corner, 0.5)
     assert [round(w.along, 6) for w in points] == [0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0]
-    assert points[0].pose.theta == pytest.approx(0.0)
-    assert points[4].pose.theta == pytest.approx(math.pi / 4)  # the corner: the bisector
-    assert points[-1].pose.theta == pytest.approx(math.pi / 2)
+    assert points[0].pose.heading == pytest.approx(0.0)
+    assert points[4].pose.heading == pytest.approx(math.pi / 4)  # the corner: the bisector
+    assert points[-1].pose.heading == pytest.approx(math.pi / 2)
     dense = np.stack([np.linspace(0, 3, 61), np.zeros(61)], axis=1)
     sparse = thin(dense, 1.0)
     np.testing.assert_allclose(sparse, [[0, 0], [1, 0], [2, 0], [3, 0]], atol=1e-12)
