@@ -19,17 +19,15 @@ from __future__ import annotations
 import dataclasses
 from collections import OrderedDict
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from envs.handover import arrival_pose
+from planner.decompose import SubTask, lasso_stages
 from planner.geometry.drivable import drivable_path
 from planner.geometry.pose import Pose
 from planner.geometry.world import World
-
-if TYPE_CHECKING:
-    from planner.decompose import SubTask
 
 CACHE_SIZE = 16
 """Redrawn courses kept (each entry holds its world, so the world's id stays unique)."""
@@ -41,12 +39,6 @@ def clearances(radius: float, planned: float) -> list[float]:
     """Clearances to redraw at, largest first: the plan's (radius plus margin), halfway to the
     robot's radius, the radius."""
     return sorted({planned, 0.5 * (planned + radius), radius}, reverse=True)
-
-
-def rollout_order(subtasks: Sequence[SubTask]) -> list[int]:
-    """Indices of ``subtasks`` in the order a rollout first drives them: prefix, then suffix."""
-    prefix = [i for i, s in enumerate(subtasks) if s.phase == "prefix"]
-    return prefix + [i for i, s in enumerate(subtasks) if s.phase != "prefix"]
 
 
 def redraw_course(
@@ -72,7 +64,7 @@ def redraw_course(
         return list(hit[1])
     drawn: list[SubTask] = list(subtasks)
     pose = start
-    for k in rollout_order(subtasks):
+    for k in lasso_stages(subtasks, 1):
         sub = subtasks[k]
         path = None
         for clearance in clearance_steps:

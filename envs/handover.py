@@ -9,9 +9,10 @@ produces; these poses are the states it does produce, read from the plan alone (
 still train in parallel): the point where each predecessor's guide enters its goal region and
 the guide's direction there.
 
-Predecessors follow ``workers.evaluation.stage_sequence`` (the prefix, then the suffix cycled):
-the sub-task before in the sequence; the first suffix sub-task also follows the last suffix one
-(the cycle closes); the first sub-task of the sequence follows the mission start.
+Predecessors follow the lasso order (``planner.decompose.lasso_stages``: the prefix, then the
+suffix cycled): the sub-task before in the sequence; the first suffix sub-task also follows the
+last suffix one (the cycle closes); the first sub-task of the sequence follows the mission
+start.
 """
 
 from __future__ import annotations
@@ -19,16 +20,13 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from envs.rewards import EnvConfigError, RegionTest
+from planner.decompose import SubTask, lasso_stages, phases
 from planner.geometry.pose import Pose
 from planner.geometry.world import World
-
-if TYPE_CHECKING:
-    from planner.decompose import SubTask
 
 STEP = 0.02
 """Spacing (m) of the points tried along a guide for the first one inside its goal region."""
@@ -38,10 +36,9 @@ INSIDE = 0.05
 
 def predecessors(subtasks: Sequence[SubTask], k: int) -> list[int | None]:
     """Indices of the sub-tasks the rollout hands sub-task ``k`` over from (None: the mission
-    start), in the order of ``stage_sequence``."""
-    prefix = [i for i, s in enumerate(subtasks) if s.phase == "prefix"]
-    suffix = [i for i, s in enumerate(subtasks) if s.phase == "suffix"]
-    sequence = prefix + suffix
+    start), in lasso order."""
+    suffix = phases(subtasks)[1]
+    sequence = lasso_stages(subtasks, 1)
     at = sequence.index(k)
     found: list[int | None] = [None] if at == 0 else [sequence[at - 1]]
     if suffix and k == suffix[0] and suffix[-1] not in found:

@@ -18,18 +18,25 @@ entry made the automaton move:
 
 Zero-length pieces are merged into their successor. Prefix sub-tasks come first, then suffix
 sub-tasks; the suffix starts at the accepting state and point where the prefix ended.
+
+A rollout of the mission drives them in *lasso order* (:func:`lasso_stages`): the prefix
+sub-tasks once, then the suffix sub-tasks over and over; the sub-task driven at each stage is
+:func:`subtask_at`. Training, hand-overs, evaluation and the bundled policy all follow it.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
 from planner.geometry.world import World
-from planner.ltl.automaton import Buchi
-from planner.search.tl_rrt_star import Lasso
+
+if TYPE_CHECKING:
+    from planner.ltl.automaton import Buchi
+    from planner.search.tl_rrt_star import Lasso
 
 Phase = Literal["prefix", "suffix"]
 
@@ -144,3 +151,26 @@ def decompose(lasso: Lasso, nba: Buchi, world: World) -> list[SubTask]:
                 )
             )
     return out
+
+
+def phases(subtasks: Sequence[SubTask]) -> tuple[list[int], list[int]]:
+    """Positions in ``subtasks`` of the prefix sub-tasks and of the suffix sub-tasks."""
+    prefix = [i for i, s in enumerate(subtasks) if s.phase == "prefix"]
+    suffix = [i for i, s in enumerate(subtasks) if s.phase == "suffix"]
+    return prefix, suffix
+
+
+def lasso_stages(subtasks: Sequence[SubTask], cycles: int) -> list[int]:
+    """Positions in ``subtasks`` of the stages of a rollout: the prefix sub-tasks once, then
+    the suffix sub-tasks ``cycles`` times."""
+    prefix, suffix = phases(subtasks)
+    return prefix + suffix * cycles
+
+
+def subtask_at(subtasks: Sequence[SubTask], stage: int) -> int:
+    """Position in ``subtasks`` of the sub-task that acts at ``stage`` of an endless rollout
+    (the suffix repeats forever; a finite task stays with its last sub-task)."""
+    prefix, suffix = phases(subtasks)
+    if stage < len(prefix) or not suffix:
+        return prefix[min(stage, len(prefix) - 1)]
+    return suffix[(stage - len(prefix)) % len(suffix)]

@@ -26,6 +26,7 @@ from envs.nav_env import NavEnv
 from envs.options import EnvOptions
 from envs.rewards import RegionLabeler
 from envs.robots import Robot, make_robot
+from planner.decompose import lasso_stages, phases
 from planner.geometry.pose import Pose
 from planner.geometry.world import World
 from planner.plan import MissionPlan
@@ -88,21 +89,15 @@ def evaluate_subtask(
     )
 
 
-def stage_sequence(plan: MissionPlan, cycles: int) -> list[int]:
-    """Sub-task indices of a mission rollout: the prefix, then the suffix ``cycles`` times."""
-    prefix = [s.index for s in plan.subtasks if s.phase == "prefix"]
-    suffix = [s.index for s in plan.subtasks if s.phase == "suffix"]
-    return prefix + suffix * cycles
-
-
 class MissionEnv(gym.Env[np.ndarray, np.ndarray]):
     """The whole mission as one episode: sub-task envs sharing one robot, switched in place.
 
     ``options`` are the sub-task envs' options (``TrainingSpec.eval_env_options(model)``).
     Observation: the current sub-task env's observation, then the stage number (position in
-    ``stage_sequence``). Ends on a collision (``failure = "collision"``), a sub-task running out
-    of steps (``"timeout"``) or after the last stage; then ``info`` holds ``accepted`` (the
-    automaton's verdict on the label trace), ``is_success``, ``failed_subtask`` and ``failure``.
+    ``planner.decompose.lasso_stages``). Ends on a collision (``failure = "collision"``), a
+    sub-task running out of steps (``"timeout"``) or after the last stage; then ``info`` holds
+    ``accepted`` (the automaton's verdict on the label trace), ``is_success``,
+    ``failed_subtask`` and ``failure``.
     """
 
     def __init__(
@@ -126,10 +121,11 @@ class MissionEnv(gym.Env[np.ndarray, np.ndarray]):
             )
             for sub in plan.subtasks
         ]
-        self.sequence = stage_sequence(plan, self.cycles)
-        self.prefix_stages = sum(1 for s in plan.subtasks if s.phase == "prefix")
+        self.sequence = lasso_stages(plan.subtasks, self.cycles)
+        prefix, suffix = phases(plan.subtasks)
+        self.prefix_stages = len(prefix)
         self.suffix_length = len(self.sequence) - self.prefix_stages
-        self.cycle_length = max(1, sum(1 for s in plan.subtasks if s.phase == "suffix"))
+        self.cycle_length = max(1, len(suffix))
         space = self.envs[0].observation_space
         assert isinstance(space, spaces.Box)
         low = np.append(space.low, 0.0).astype(np.float32)

@@ -33,6 +33,7 @@ from stable_baselines3.common.policies import BasePolicy
 
 from envs.options import EnvOptions
 from envs.rewards import EnvConfigError
+from planner.decompose import subtask_at
 from planner.errors import LtlnavError
 from planner.plan import MissionPlan
 from planner.serialize import plan_from_dict
@@ -241,8 +242,6 @@ class ConcatenatedPolicy:
         models: dict[str, bytes],
     ) -> None:
         self.manifest, self.mission, self.plan = manifest, mission, plan
-        self.prefix = [s.index for s in plan.subtasks if s.phase == "prefix"]
-        self.suffix = [s.index for s in plan.subtasks if s.phase == "suffix"]
         self.cycles = manifest.cycles
         self._probe = self.make_env(cycles=1)
         self.policies = [build_policy(e, models[e.model], self._probe) for e in manifest.subtasks]
@@ -279,9 +278,7 @@ class ConcatenatedPolicy:
 
     def subtask_of(self, stage: int) -> int:
         """The sub-task that acts at ``stage`` (the suffix repeats forever)."""
-        if stage < len(self.prefix) or not self.suffix:
-            return self.prefix[min(stage, len(self.prefix) - 1)]
-        return self.suffix[(stage - len(self.prefix)) % len(self.suffix)]
+        return subtask_at(self.plan.subtasks, stage)
 
     def reset(self, obs: np.ndarray) -> None:
         """Start a new rollout at ``obs`` (stage 0)."""

@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
-from planner.decompose import SubTask, decompose
+from planner.decompose import SubTask, decompose, lasso_stages, subtask_at
 from planner.geometry.shapes import Ball, Box
 from planner.geometry.world import World
 from planner.ltl.automaton import Buchi, Edge
@@ -193,3 +193,14 @@ def test_zero_length_piece_is_merged() -> None:
     subs = decompose(las, nba, world)
     assert [(s.goal, s.nba_state, s.next_nba_state) for s in subs] == [("a", 0, 1), ("b", 1, 2)]
     check_chain(subs, las, world)
+
+
+def test_lasso_order_runs_the_prefix_once_then_cycles_the_suffix() -> None:
+    point = np.zeros((1, 2))
+    phases = ["prefix", "prefix", "suffix", "suffix"]
+    subs = [SubTask(i, p, "", point[0], point, 0, 0) for i, p in enumerate(phases)]  # type: ignore[arg-type]
+    assert lasso_stages(subs, 2) == [0, 1, 2, 3, 2, 3]
+    assert lasso_stages(subs, 0) == [0, 1]
+    assert [subtask_at(subs, n) for n in range(7)] == [0, 1, 2, 3, 2, 3, 2]
+    finite = subs[:2]
+    assert [subtask_at(finite, n) for n in range(4)] == [0, 1, 1, 1]

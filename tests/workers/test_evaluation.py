@@ -8,13 +8,13 @@ from collections.abc import Callable
 import numpy as np
 
 from envs.nav_env import NavEnv
+from planner.decompose import lasso_stages
 from planner.plan import MissionPlan
 from workers.evaluation import (
     MissionEnv,
     evaluate_subtask,
     rollout_mission,
     stage_policies,
-    stage_sequence,
 )
 from workers.mission import MissionSpec
 
@@ -62,7 +62,7 @@ def test_mission_rollout_of_a_good_policy_is_accepted(
     env = MissionEnv(
         mission, plan, mission.training.eval_env_options(mission.robot.model), cycles=2
     )
-    assert env.sequence == stage_sequence(plan, 2)
+    assert env.sequence == lasso_stages(plan.subtasks, 2)
     assert len(env.sequence) == 2 + 2 * 2  # prefix a, b; suffix (a, b) twice
     act = follower(lambda: env.envs[env.sequence[env.stage]])
     result = rollout_mission(act, env, episodes=2, seed=0)
