@@ -41,10 +41,11 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from envs.factory import make_env
 from envs.nav_env import NavEnv
-from envs.rewards import RegionTest, ScaledReward
+from envs.rewards import ScaledReward
 from envs.robots import Robot, make_robot
 from envs.spec import RobotSpec
 from planner.decompose import SubTask
+from planner.geometry.region_test import RegionTest
 from planner.geometry.shapes import Ball, Box, Shape
 from planner.geometry.world import World
 from planner.guidance import ProgressTracker

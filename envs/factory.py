@@ -23,12 +23,13 @@ from envs.feedforward import Track
 from envs.handover import checked_starts, handover_poses
 from envs.nav_env import Leg, NavEnv
 from envs.options import EnvOptions, options_with
-from envs.rewards import EnvConfigError, RegionTest, reward_mode
+from envs.rewards import EnvConfigError, reward_mode
 from envs.robots import Robot, RobotConfigError, make_robot, robot_class, robot_params
 from envs.robots.racecar import WHEEL_RADIUS, RacecarParams
 from envs.spec import RobotSpec
 from planner.geometry.drivable import thin
 from planner.geometry.pose import Pose
+from planner.geometry.region_test import RegionTest
 from planner.geometry.world import World
 from planner.guidance import Guide, ProgressTracker
 

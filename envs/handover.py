@@ -23,9 +23,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from envs.rewards import EnvConfigError, RegionTest
+from envs.rewards import EnvConfigError
 from planner.decompose import SubTask, lasso_stages, phases
 from planner.geometry.pose import Pose
+from planner.geometry.region_test import RegionTest
 from planner.geometry.world import World
 
 STEP = 0.02

@@ -47,13 +47,12 @@ from envs.rewards import (
     VIOLATION,
     AutomatonTracker,
     EnvConfigError,
-    RegionLabeler,
-    RegionTest,
     RewardMode,
     Stage,
 )
 from envs.robots import Robot
 from planner.geometry.pose import Pose
+from planner.geometry.region_test import RegionTest
 from planner.geometry.world import World
 from planner.guidance import Guide, ProgressTracker
 from planner.ltl.automaton import Buchi
@@ -121,9 +120,7 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.legs = list(legs)
         self.num_balls = sum(leg.guide.num_balls for leg in self.legs)
         self.guide_length = sum(leg.guide.length for leg in self.legs)
-        self._labeler = RegionLabeler(
-            world.region_names, [world.regions[n] for n in world.region_names]
-        )
+        self._labels = world.labeler.point_labels
         self._automaton: AutomatonTracker | None = None
         if mode.automaton and nba is not None:
             stages = [
@@ -210,7 +207,7 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
                     chosen = 0 if len(self.starts) == 1 else int(rng.integers(len(self.starts)))
                 pose = self.starts[chosen]
                 start, heading = pose.position.copy(), pose.heading
-                keep = self._labeler.labels(start.tolist())
+                keep = self._labels(start.tolist())
             if o.start_noise > 0:
                 start = self._perturb(start, keep, rng)
             if o.heading_noise > 0:
@@ -263,7 +260,7 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
                 continue
             if self.world.in_collision(p[None, :], self.robot.radius)[0]:
                 continue
-            if keep is not None and self._labeler.labels(p.tolist()) != keep:
+            if keep is not None and self._labels(p.tolist()) != keep:
                 continue
             return p
         return start
@@ -337,7 +334,7 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         completes), SUCCESS after the last stage, or VIOLATION."""
         tracker = self._automaton
         assert tracker is not None
-        moved = tracker.read(self._labeler.labels(x), d == 0.0)
+        moved = tracker.read(self._labels(x), d == 0.0)
         if moved < 0:
             return VIOLATION
         if moved == 0:

@@ -29,14 +29,12 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from typing import Any, ClassVar
 
-import numpy as np
-
 from planner.errors import FieldError
-from planner.geometry.shapes import Ball, Box, Shape
+from planner.geometry.region_test import RegionTest
 from planner.ltl.automaton import Buchi
 
 RUNNING = 0
@@ -82,67 +80,6 @@ class RewardConfig:
             value = getattr(self, name)
             if value is not None and value < 0:
                 raise EnvConfigError(f"rewards.{name}", f"must be >= 0, got {value}")
-
-
-# ----------------------------------------------------------------------------- geometry tests
-class RegionTest:
-    """Scalar membership and distance of one workspace shape: plain float arithmetic for boxes
-    and balls (a fraction of a microsecond), the shape's own methods otherwise."""
-
-    def __init__(self, shape: Shape) -> None:
-        self.shape = shape
-        self.contains: Callable[[Sequence[float]], bool] = self._generic_contains
-        """Whether a point lies in the shape (boundary included)."""
-        if isinstance(shape, Box):
-            lo, hi = tuple(shape.lo.tolist()), tuple(shape.hi.tolist())
-            self._lo, self._hi = lo, hi
-            if len(lo) == 2:
-                (a0, a1), (b0, b1) = lo, hi
-                self.contains = lambda x: a0 <= x[0] <= b0 and a1 <= x[1] <= b1
-            else:
-                (a0, a1, a2), (b0, b1, b2) = lo, hi
-                self.contains = lambda x: a0 <= x[0] <= b0 and a1 <= x[1] <= b1 and a2 <= x[2] <= b2
-        elif isinstance(shape, Ball):
-            centre, radius = tuple(shape.center.tolist()), float(shape.radius)
-            self._centre, self._radius = centre, radius
-            self.contains = lambda x: math.dist(x, centre) <= radius
-
-    def _generic_contains(self, x: Sequence[float]) -> bool:
-        return bool(self.shape.contains(np.array([x], dtype=float))[0])
-
-    def distance(self, x: Sequence[float]) -> float:
-        """Euclidean distance from ``x`` to the shape (0 inside)."""
-        if isinstance(self.shape, Box):
-            d2 = 0.0
-            for v, a, b in zip(x, self._lo, self._hi, strict=False):
-                gap = a - v if v < a else (v - b if v > b else 0.0)
-                d2 += gap * gap
-            return math.sqrt(d2)
-        if isinstance(self.shape, Ball):
-            return max(0.0, math.dist(x, self._centre) - self._radius)
-        return float(self.shape.distance(np.array([x], dtype=float))[0])
-
-
-class RegionLabeler:
-    """``L(x)`` without the obstacle label (a robot in an obstacle has crashed already), one
-    point at a time; label sets are interned so that equal labels are the same object."""
-
-    def __init__(self, names: Sequence[str], shapes: Sequence[Shape]) -> None:
-        self._tests = [(1 << k, RegionTest(s)) for k, s in enumerate(shapes)]
-        self._names = list(names)
-        self._sets: dict[int, frozenset[str]] = {}
-
-    def labels(self, x: Sequence[float]) -> frozenset[str]:
-        """The names of the regions containing ``x``."""
-        mask = 0
-        for bit, test in self._tests:
-            if test.contains(x):
-                mask |= bit
-        found = self._sets.get(mask)
-        if found is None:
-            found = frozenset(n for k, n in enumerate(self._names) if mask >> k & 1)
-            self._sets[mask] = found
-        return found
 
 
 # ----------------------------------------------------------------------------- automaton

@@ -24,7 +24,6 @@ from gymnasium import spaces
 from envs.factory import make_env
 from envs.nav_env import NavEnv
 from envs.options import EnvOptions
-from envs.rewards import RegionLabeler
 from envs.robots import Robot, make_robot
 from planner.decompose import lasso_stages, phases
 from planner.geometry.pose import Pose
@@ -132,9 +131,7 @@ class MissionEnv(gym.Env[np.ndarray, np.ndarray]):
         high = np.append(space.high, float(len(self.sequence))).astype(np.float32)
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
         self.action_space = self.envs[0].action_space
-        self._labeler = RegionLabeler(
-            self.world.region_names, [self.world.regions[n] for n in self.world.region_names]
-        )
+        self._labels = self.world.labeler.point_labels
         self.stage = 0
         self.trace: list[frozenset[str]] = []
         """Labels met so far, stutter-free."""
@@ -152,7 +149,7 @@ class MissionEnv(gym.Env[np.ndarray, np.ndarray]):
     def _record(self) -> None:
         x = self.robot.position().tolist()
         self.trail.append(x)
-        label = self._labeler.labels(x)
+        label = self._labels(x)
         if not self.trace or self.trace[-1] != label:
             self.trace.append(label)
 

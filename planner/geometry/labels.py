@@ -1,4 +1,9 @@
-"""Fast labels for TL-RRT*: ``L(x)`` as an integer bitmask and label changes along segments.
+"""The label function ``L(x)`` over regions: one point at a time, as bitmasks, along segments.
+
+:meth:`LabelOracle.point_labels` is ``L(x)`` of one point without the obstacle label (the
+world's :meth:`World.labels` adds that label; an env's robot inside an obstacle has crashed
+already), with scalar region tests (:mod:`planner.geometry.region_test`) fast enough for every
+env step.
 
 TL-RRT* asks for the label of every new sample and for the number of label changes along every
 candidate edge, thousands of times per second. :class:`World` answers those questions exactly,
@@ -14,12 +19,16 @@ A region of an unknown shape kind is delegated to the world's own (slower) funct
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from planner.geometry.region_test import RegionTest
 from planner.geometry.shapes import Ball, Box, Polygon
-from planner.geometry.world import World
+
+if TYPE_CHECKING:
+    from planner.geometry.world import World
 
 _MAX_INT_BITS = 62
 
@@ -77,6 +86,7 @@ class LabelOracle:
             else (np.int64(1) << np.arange(len(self.names), dtype=np.int64))
         )
         self._labels: dict[int, frozenset[str]] = {}
+        self._tests = [(1 << k, RegionTest(s).contains) for k, s in enumerate(shapes)]
 
     def label(self, mask: int) -> frozenset[str]:
         """The frozenset of region names of a mask (cached)."""
@@ -85,6 +95,14 @@ class LabelOracle:
             got = frozenset(n for i, n in enumerate(self.names) if (mask >> i) & 1)
             self._labels[mask] = got
         return got
+
+    def point_labels(self, x: Sequence[float]) -> frozenset[str]:
+        """``L(x)`` over ``names`` for one point ``x`` (equal labels are the same object)."""
+        mask = 0
+        for bit, contains in self._tests:
+            if contains(x):
+                mask |= bit
+        return self.label(mask)
 
     def membership(self, points: np.ndarray) -> np.ndarray:
         """(n, len(names)) membership of points in the task's regions."""

@@ -1,7 +1,8 @@
 """A workspace: bounds, obstacles and labelled regions, with vectorised geometric queries.
 
 The label function ``L(x)`` of the method is :meth:`World.labels`: the names of the regions
-containing ``x`` plus the reserved label ``"obstacle"`` inside any obstacle. Collision checks take
+containing ``x`` (``World.labeler``, :mod:`planner.geometry.labels`) plus the reserved label
+``"obstacle"`` inside any obstacle. Collision checks take
 a ``clearance`` (the robot's radius): obstacles are inflated by it and the bounds shrunk by it.
 Boxes and balls are stacked into arrays so a query over n points or segments is a handful of
 numpy operations over (n x obstacles); only polygons are visited one by one.
@@ -17,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.errors import WorldError
+from planner.geometry.labels import LabelOracle
 from planner.geometry.shapes import (
     SEGMENT_TOL,
     Ball,
@@ -185,6 +187,8 @@ class World:
         self.region_names: tuple[str, ...] = tuple(self.regions)
         self._obs = _ShapeSet(self.obstacles, self.dim)
         self._reg = _ShapeSet([self.regions[n] for n in self.region_names], self.dim)
+        self.labeler = LabelOracle(self, self.region_names)
+        """``L(x)`` over every region (no obstacle label): one point, bitmasks, segments."""
         self._realisable_cache: dict[tuple[frozenset[str], frozenset[str], float], bool] = {}
 
     def _check_shape(self, field: str, shape: Shape) -> None:
@@ -211,14 +215,10 @@ class World:
     def labels(self, x: Any) -> frozenset[str]:
         """``L(x)``: the regions containing ``x``, plus ``"obstacle"`` inside any obstacle."""
         p = as_points(x, self.dim)[:1]
-        names = {
-            n
-            for n, inside in zip(self.region_names, self._reg.contains(p, 0.0)[0], strict=True)
-            if inside
-        }
+        names = self.labeler.point_labels(p[0].tolist())
         if self._obs.any_contains(p, 0.0)[0]:
-            names.add(self.OBSTACLE)
-        return frozenset(names)
+            return names | {self.OBSTACLE}
+        return names
 
     def label_matrix(self, points: Any) -> BoolArray:
         """(n, len(region_names)) membership of each point in each region (no obstacle column)."""

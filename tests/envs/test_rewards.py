@@ -13,16 +13,15 @@ from envs.rewards import (
     REWARD_MODES,
     AutomatonTracker,
     EnvConfigError,
-    RegionLabeler,
-    RegionTest,
     RewardConfig,
     Stage,
     reward_config,
     reward_mode,
 )
-from planner.geometry.shapes import Ball, Box, Polygon
+from planner.geometry.region_test import RegionTest
+from planner.geometry.shapes import Ball
 from planner.ltl.translate import translate
-from tests.envs.test_nav_env import mission, planned, world_2d
+from tests.envs.test_nav_env import mission, planned
 
 
 def test_paper_reward_is_exactly_the_papers() -> None:
@@ -73,33 +72,6 @@ def test_reward_configuration_errors() -> None:
         reward_config({"bonus": 1.0})
     assert reward_config({"crash": -2}) == RewardConfig(crash=-2)
     assert set(REWARD_MODES) == {"rrt", "rrt-paper", "g-rrt", "ned", "tl"}
-
-
-@pytest.mark.parametrize(
-    "shape",
-    [
-        Box(np.array([1.0, -1.0]), np.array([2.0, 0.5])),
-        Box(np.array([1.0, -1.0, 0.0]), np.array([2.0, 0.5, 1.0])),
-        Ball(np.array([0.5, 0.2]), 0.7),
-        Ball(np.array([0.5, 0.2, -0.3]), 0.7),
-        Polygon(np.array([[0.0, 0.0], [2.0, 0.0], [1.0, 0.5], [1.0, 2.0]])),
-    ],
-    ids=["box2", "box3", "ball2", "ball3", "polygon"],
-)
-def test_region_tests_agree_with_the_shapes(shape: Box | Ball | Polygon) -> None:
-    test = RegionTest(shape)
-    pts = np.random.default_rng(0).uniform(-1.0, 3.0, size=(300, shape.dim))
-    inside = shape.contains(pts)
-    assert 0 < inside.sum() < len(pts)
-    assert [test.contains(p.tolist()) for p in pts] == inside.tolist()
-    assert np.allclose([test.distance(p.tolist()) for p in pts], shape.distance(pts))
-
-
-def test_labeler_matches_the_world_labels() -> None:
-    world = world_2d()
-    labeler = RegionLabeler(world.region_names, [world.regions[n] for n in world.region_names])
-    for x in np.random.default_rng(1).uniform(0.0, 10.0, size=(400, 2)):
-        assert labeler.labels(x.tolist()) == world.labels(x) - {"obstacle"}
 
 
 def test_automaton_tracker_follows_stages_and_detects_violations() -> None:
