@@ -19,11 +19,12 @@ import gymnasium as gym
 import numpy as np
 
 from envs.drivable import clearances, redraw_course
+from envs.errors import EnvConfigError
 from envs.feedforward import Track
 from envs.handover import checked_starts, handover_poses
 from envs.nav_env import Leg, NavEnv
 from envs.options import EnvOptions, options_with
-from envs.rewards import EnvConfigError, reward_mode
+from envs.rewards import reward_mode
 from envs.robots import Robot, RobotConfigError, make_robot, robot_class, robot_params
 from envs.robots.racecar import WHEEL_RADIUS, RacecarParams
 from envs.spec import RobotSpec

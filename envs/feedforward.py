@@ -30,8 +30,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from envs.errors import EnvConfigError
 from envs.observation import HEADING_FEATURES
-from envs.rewards import EnvConfigError
 from envs.robots.base import Robot, wrap_angle
 from planner.geometry.drivable import arc_lengths
 from planner.guidance import Guide

@@ -23,7 +23,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from envs.rewards import EnvConfigError
+from envs.errors import EnvConfigError
 from planner.decompose import SubTask, lasso_stages, phases
 from planner.geometry.pose import Pose
 from planner.geometry.region_test import RegionTest

@@ -37,19 +37,13 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from envs.errors import EnvConfigError
 from envs.feedforward import ActionShaping, Track
+from envs.judge import RUNNING, SUCCESS, VIOLATION, AutomatonTracker, Stage
 from envs.observation import ObservationBuilder
 from envs.potential import GuidePotential
 from envs.rays import RayCaster
-from envs.rewards import (
-    RUNNING,
-    SUCCESS,
-    VIOLATION,
-    AutomatonTracker,
-    EnvConfigError,
-    RewardMode,
-    Stage,
-)
+from envs.rewards import RewardMode
 from envs.robots import Robot
 from planner.geometry.pose import Pose
 from planner.geometry.region_test import RegionTest

@@ -14,8 +14,9 @@ from typing import Any, Literal
 
 import numpy as np
 
+from envs.errors import EnvConfigError
 from envs.observation import ObservationMode
-from envs.rewards import EnvConfigError, RewardConfig, reward_config
+from envs.rewards import RewardConfig, reward_config
 
 FeedforwardLaw = Literal["heading", "pursuit"]
 """How ``EnvOptions.guide_feedforward`` turns a (forward, turn) robot."""

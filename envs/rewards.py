@@ -1,4 +1,4 @@
-"""Reward modes of the navigation env, and the goal and automaton judges they rely on.
+"""Reward modes of the navigation env (the judges they rely on are ``envs.judge``).
 
 Every mode shares the paper's priorities (Cai et al., RA-L 2023): a crash (the robot's disc or
 sphere meets an obstacle or leaves the bounds) earns ``R-`` and ends the episode; reaching the
@@ -33,21 +33,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from typing import Any, ClassVar
 
-from planner.errors import FieldError
+from envs.errors import EnvConfigError
 from planner.geometry.region_test import RegionTest
-from planner.ltl.automaton import Buchi
-
-RUNNING = 0
-"""Judge outcome: the episode goes on."""
-SUCCESS = 1
-"""Judge outcome: the goal is reached (``R++``, terminated, ``is_success``)."""
-VIOLATION = 2
-"""Judge outcome: the automaton rejects the labels seen (``R-``, terminated, no success)."""
-
-
-class EnvConfigError(FieldError, ValueError):
-    """An env that cannot be built as asked: bad option, unknown reward mode, missing plan, a
-    start of the wrong dimension... ``field`` names the culprit (``reward``, ``options.rays``)."""
 
 
 @dataclass(frozen=True)
@@ -82,76 +69,6 @@ class RewardConfig:
                 raise EnvConfigError(f"rewards.{name}", f"must be >= 0, got {value}")
 
 
-# ----------------------------------------------------------------------------- automaton
-@dataclass(frozen=True)
-class Stage:
-    """One sub-task seen by the automaton: from ``source`` make the transition to ``target``; when
-    ``source == target`` (a piece that stays in one state) the stage ends on entering ``goal``
-    (or, without a goal region, at the end of its guide)."""
-
-    source: int
-    target: int
-    goal: str
-
-
-class AutomatonTracker:
-    """The set of automaton states reachable on the labels read so far, through a sequence of
-    stages (one per sub-task). Within a stage the set starts at the stage's ``source``; when it
-    contains the ``target`` the stage is complete and the next starts at that target (the run
-    commits to the plan's state). An empty set means the specification is violated.
-
-    Transitions of a (state set, label) pair are memoised, so a step costs a dict lookup.
-    """
-
-    def __init__(self, nba: Buchi, stages: Sequence[Stage]) -> None:
-        if not stages:
-            raise EnvConfigError("plan", "the automaton judge needs at least one sub-task")
-        for s in stages:
-            for q in (s.source, s.target):
-                if not 0 <= q < nba.num_states:
-                    raise EnvConfigError("plan", f"automaton state {q} is not in the automaton")
-        self.nba = nba
-        self.stages = tuple(stages)
-        self.stage = 0
-        self.states: frozenset[int] = frozenset({stages[0].source})
-        self._post: dict[tuple[frozenset[int], frozenset[str]], frozenset[int]] = {}
-
-    def reset(self, stage: int = 0) -> None:
-        """Start stage ``stage`` at its source state."""
-        self.stage = stage
-        self.states = frozenset({self.stages[stage].source})
-
-    @property
-    def done(self) -> bool:
-        """Every stage is complete."""
-        return self.stage >= len(self.stages)
-
-    def read(self, label: frozenset[str], at_end: bool) -> int:
-        """Read one label; ``at_end`` tells whether the robot is in its guide's last ball.
-        Returns how many stages completed on this label (0 or 1), or -1 on a violation."""
-        key = (self.states, label)
-        nxt = self._post.get(key)
-        if nxt is None:
-            nxt = frozenset(q2 for q in self.states for q2 in self.nba.successors(q, label))
-            self._post[key] = nxt
-        if not nxt:
-            self.states = nxt
-            return -1
-        self.states = nxt
-        stage = self.stages[self.stage]
-        if stage.source != stage.target:
-            complete = stage.target in nxt
-        else:
-            complete = (stage.goal in label) if stage.goal else at_end
-        if not complete:
-            return 0
-        self.stage += 1
-        if self.stage < len(self.stages):
-            self.states = frozenset({self.stages[self.stage].source})
-        return 1
-
-
-# ----------------------------------------------------------------------------- reward modes
 class RewardMode(ABC):
     """One reward scheme: ``R-``/``R++`` plus the reward of an ordinary step.
 

@@ -31,8 +31,8 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 from stable_baselines3 import DDPG, PPO, SAC, TD3
 from stable_baselines3.common.policies import BasePolicy
 
+from envs.errors import EnvConfigError
 from envs.options import EnvOptions
-from envs.rewards import EnvConfigError
 from planner.decompose import subtask_at
 from planner.errors import LtlnavError
 from planner.plan import MissionPlan

@@ -25,9 +25,10 @@ from pydantic import (
     model_validator,
 )
 
+from envs.errors import EnvConfigError
 from envs.observation import HEADING_FEATURES
 from envs.options import EnvOptions
-from envs.rewards import REWARD_MODES, EnvConfigError, RewardConfig, reward_mode
+from envs.rewards import REWARD_MODES, RewardConfig, reward_mode
 from planner.geometry.world_spec import raise_problems
 
 Algorithm = Literal["sac", "td3", "ddpg", "ppo"]

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 
 from envs.drivable import clearances, redraw_course
+from envs.errors import EnvConfigError
 from envs.factory import make_env
 from envs.feedforward import Track, pursuit_target, pursuit_turn
 from envs.handover import arrival_pose
 from envs.options import EnvOptions
-from envs.rewards import EnvConfigError
 from envs.robots import robot_params
 from envs.spec import RobotSpec
 from planner.geometry.drivable import thin

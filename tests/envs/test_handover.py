@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
+from envs.errors import EnvConfigError
 from envs.factory import make_env
 from envs.handover import INSIDE, arrival_pose, predecessors
-from envs.rewards import EnvConfigError
 from planner.decompose import SubTask
 from planner.geometry.pose import Pose
 from planner.geometry.shapes import Box

@@ -18,11 +18,12 @@ import numpy as np
 import pytest
 from stable_baselines3.common.env_checker import check_env
 
+from envs.errors import EnvConfigError
 from envs.factory import ENV_ID, make_env, split_subtask
 from envs.nav_env import NavEnv
 from envs.options import EnvOptions
 from envs.rays import RayCaster
-from envs.rewards import REWARD_MODES, EnvConfigError
+from envs.rewards import REWARD_MODES
 from envs.robots import RobotConfigError
 from envs.spec import RobotSpec
 from planner.decompose import SubTask

@@ -7,17 +7,11 @@ import math
 import numpy as np
 import pytest
 
+from envs.errors import EnvConfigError
 from envs.factory import make_env
+from envs.judge import AutomatonTracker, Stage
 from envs.options import EnvOptions
-from envs.rewards import (
-    REWARD_MODES,
-    AutomatonTracker,
-    EnvConfigError,
-    RewardConfig,
-    Stage,
-    reward_config,
-    reward_mode,
-)
+from envs.rewards import REWARD_MODES, RewardConfig, reward_config, reward_mode
 from planner.geometry.region_test import RegionTest
 from planner.geometry.shapes import Ball
 from planner.ltl.translate import translate

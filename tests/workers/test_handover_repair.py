@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from stable_baselines3 import SAC
 
+from envs.errors import EnvConfigError
 from envs.factory import make_env
 from envs.handover import Pose
-from envs.rewards import EnvConfigError
 from planner.plan import MissionPlan
 from planner.serialize import plan_to_dict
 from workers.evaluation import MissionEvaluation
