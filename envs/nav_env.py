@@ -279,37 +279,36 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         self._index = leg.offset + local
         if self.render_mode is not None:
             self.trail.append(x)
-        terminated = truncated = success = violation = stalled = False
+        truncated = stalled = False
         crashed = robot.collided()
         if crashed:
-            reward, terminated = self.mode.crash, True
+            outcome = RUNNING
+        elif self._automaton is None:
+            goal = leg.goal
+            reached = goal.contains(x) if goal is not None else d == 0.0
+            outcome = SUCCESS if reached else RUNNING
         else:
-            if self._automaton is None:
-                goal = leg.goal
-                reached = goal.contains(x) if goal is not None else d == 0.0
-                outcome = SUCCESS if reached else RUNNING
-            else:
-                outcome = self._automaton_outcome(x, d)
-            if outcome == RUNNING:
-                # togo - _togo: the metres gained, including a move to the next leg (g-rrt).
-                gain = togo - self._togo
-                if self._dense:
-                    before, self._potential = self._potential, self._continuous_togo(x)
-                    gain = before - self._potential
-                reward = self.mode.step_reward(improved, gain, x)
-                if self._t >= self.max_steps:
+            outcome = self._automaton_outcome(x, d)
+        success, violation = outcome == SUCCESS, outcome == VIOLATION
+        terminated = crashed or outcome != RUNNING
+        gain = 0.0
+        if not terminated:
+            # togo - _togo: the metres gained, including a move to the next leg (g-rrt).
+            gain = togo - self._togo
+            if self._dense:
+                before, self._potential = self._potential, self._continuous_togo(x)
+                gain = before - self._potential
+        reward = self.mode.reward(crashed or violation, success, improved, gain, x)
+        if not terminated:
+            if self._t >= self.max_steps:
+                truncated = True
+            stall = self.options.stall_steps
+            if stall and self._since >= stall:
+                stalled = True
+                if self.options.stall_penalty is None:
                     truncated = True
-                stall = self.options.stall_steps
-                if stall and self._since >= stall:
-                    stalled = True
-                    if self.options.stall_penalty is None:
-                        truncated = True
-                    else:
-                        reward, terminated = self.options.stall_penalty, True
-            elif outcome == SUCCESS:
-                reward, terminated, success = self.mode.goal, True, True
-            else:
-                reward, terminated, violation = self.mode.crash, True, True
+                else:
+                    reward, terminated = self.options.stall_penalty, True
         obs = self._obs.build(raw, x, self._index)
         return (
             obs,

@@ -111,6 +111,17 @@ class RewardMode(ABC):
         self.goal_region = goal
         self.goal_end = tuple(float(v) for v in end)
 
+    def reward(
+        self, crashed: bool, reached: bool, improved: bool, gain: float, x: Sequence[float]
+    ) -> float:
+        """The reward of a step, in the paper's priorities: ``R-`` on a crash (or an automaton
+        violation), else ``R++`` when the goal is ``reached``, else :meth:`step_reward`."""
+        if crashed:
+            return self.crash
+        if reached:
+            return self.goal
+        return self.step_reward(improved, gain, x)
+
     @abstractmethod
     def step_reward(self, improved: bool, gain: float, x: Sequence[float]) -> float:
         """Reward of a step that neither crashed nor reached the goal: ``improved`` is a new

@@ -1,5 +1,5 @@
 """The r-ball guide of a sub-task and its progress tracker (the paper's reward on top of them is
-``planner.paper_reward``).
+``envs.rewards``).
 
 A guide is the planned geometric path of one sub-task covered by balls of radius ``r``
 centred on waypoints at most ``spacing`` apart (the paper uses touching balls, spacing

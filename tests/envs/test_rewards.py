@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import pytest
@@ -11,9 +12,10 @@ from envs.errors import EnvConfigError
 from envs.factory import make_env
 from envs.judge import AutomatonTracker, Stage
 from envs.options import EnvOptions
-from envs.rewards import REWARD_MODES, RewardConfig, reward_config, reward_mode
+from envs.rewards import REWARD_MODES, PaperReward, RewardConfig, reward_config, reward_mode
 from planner.geometry.region_test import RegionTest
 from planner.geometry.shapes import Ball
+from planner.guidance import Guide, ProgressTracker
 from planner.ltl.translate import translate
 from tests.envs.test_nav_env import mission, planned
 
@@ -142,3 +144,54 @@ def test_dense_progress_pays_the_change_of_a_potential_toward_the_next_ball() ->
     ball_only.reset(seed=0, options={"start": 0})
     _, reward, *_ = ball_only.step(np.zeros(2, dtype=np.float32))
     assert reward == pytest.approx(-step_cost)  # no new ball: only the step cost
+
+
+def paper_rewards(
+    mode: PaperReward, crashed: Sequence[bool], reached: Sequence[bool], improved: Sequence[bool]
+) -> list[float]:
+    """The ``rrt-paper`` reward of each step of a batch (gain and position do not matter)."""
+    return [
+        mode.reward(bool(c), bool(r), bool(i), 0.0, [0.0, 0.0])
+        for c, r, i in zip(crashed, reached, improved, strict=True)
+    ]
+
+
+def test_progress_and_reward_sequence_along_a_guide() -> None:
+    """R+ on each new ball, nothing when going back or staying, R++ at the end, R- first."""
+    mode = PaperReward(RewardConfig())
+    guide = Guide.from_path(np.array([[0.0, 0.0], [1.0, 0.0]]), r=0.125)
+    assert guide.num_balls == 5
+    tracker = ProgressTracker(guide, num_envs=1)
+    tracker.reset(points=np.array([[0.0, 0.0]]))
+    assert tracker.index.tolist() == [0]
+    xs = [0.26, 0.3, 0.1, 0.5, 0.5, 0.74, 0.9, 1.0]
+    expected_index = [1, 1, 1, 2, 2, 3, 4, 4]
+    expected_reward = [5.0, 0.0, 0.0, 5.0, 0.0, 5.0, 200.0, 200.0]
+    for x, idx, rew in zip(xs, expected_index, expected_reward, strict=True):
+        step = tracker.update(np.array([[x, 0.0]]))
+        at_goal = step.at_end
+        reward = paper_rewards(mode, [False], at_goal, step.improved)
+        assert step.index.tolist() == [idx]
+        assert reward == [rew]
+    # leaving the guide: D = inf, no progress; an obstacle beats everything
+    step = tracker.update(np.array([[0.5, 1.0]]))
+    assert not step.improved[0] and step.d[0] == np.inf and step.index[0] == 4
+    assert paper_rewards(mode, [True], [True], [True])[0] == -100.0
+
+
+def test_reward_priorities_and_constants() -> None:
+    mode = PaperReward(RewardConfig())
+    obstacle = np.array([True, True, False, False, False])
+    goal = np.array([True, False, True, True, False])
+    improved = np.array([True, True, True, False, False])
+    r = paper_rewards(mode, obstacle, goal, improved)
+    assert r == [-100.0, -100.0, 200.0, 200.0, 0.0]
+    c = PaperReward(RewardConfig(crash=-200.0, goal=50.0, progress=1.0))
+    r = paper_rewards(c, [False, True], [False, False], [True, True])
+    assert r == [1.0, -200.0]
+    for o, g, i in zip(obstacle, goal, improved, strict=True):
+        assert (
+            mode.reward(bool(o), bool(g), bool(i), 0.0, [0.0, 0.0])
+            == paper_rewards(mode, [o], [g], [i])[0]
+        )
+    assert c.reward(False, False, True, 0.0, [0.0, 0.0]) == 1.0

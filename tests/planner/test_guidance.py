@@ -1,4 +1,5 @@
-"""r-ball guide maths, progress tracking and the paper's reward."""
+"""r-ball guide maths and progress tracking (the paper's reward over them is tested in
+``tests/envs/test_rewards.py``)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,6 @@ import numpy as np
 import pytest
 
 from planner.guidance import Guide, ProgressTracker
-from planner.paper_reward import RewardConstants, paper_reward, paper_reward_one
 
 
 def brute_index(guide: Guide, points: np.ndarray) -> np.ndarray:
@@ -80,28 +80,6 @@ def test_vectorised_and_scalar_paths_match_brute_force(dim: int) -> None:
     np.testing.assert_allclose(d[expected >= 0], guide.dist_to_go[expected[expected >= 0]])
 
 
-def test_progress_and_reward_sequence_along_a_guide() -> None:
-    """R+ on each new ball, nothing when going back or staying, R++ at the end, R- first."""
-    guide = Guide.from_path(np.array([[0.0, 0.0], [1.0, 0.0]]), r=0.125)
-    assert guide.num_balls == 5
-    tracker = ProgressTracker(guide, num_envs=1)
-    tracker.reset(points=np.array([[0.0, 0.0]]))
-    assert tracker.index.tolist() == [0]
-    xs = [0.26, 0.3, 0.1, 0.5, 0.5, 0.74, 0.9, 1.0]
-    expected_index = [1, 1, 1, 2, 2, 3, 4, 4]
-    expected_reward = [5.0, 0.0, 0.0, 5.0, 0.0, 5.0, 200.0, 200.0]
-    for x, idx, rew in zip(xs, expected_index, expected_reward, strict=True):
-        step = tracker.update(np.array([[x, 0.0]]))
-        at_goal = step.at_end
-        reward = paper_reward(np.array([False]), at_goal, step.improved)
-        assert step.index.tolist() == [idx]
-        assert reward.tolist() == [rew]
-    # leaving the guide: D = inf, no progress; an obstacle beats everything
-    step = tracker.update(np.array([[0.5, 1.0]]))
-    assert not step.improved[0] and step.d[0] == np.inf and step.index[0] == 4
-    assert paper_reward(np.array([True]), np.array([True]), np.array([True]))[0] == -100.0
-
-
 def test_batch_tracker_matches_scalar_path_and_reset() -> None:
     rng = np.random.default_rng(7)
     path = np.cumsum(rng.normal(size=(20, 2)), axis=0)
@@ -129,20 +107,6 @@ def test_batch_tracker_matches_scalar_path_and_reset() -> None:
     assert batch.index[1] == -1 and batch.d_min[2] == np.inf
     with pytest.raises(ValueError):
         batch.reset(0, start_index=guide.num_balls)
-
-
-def test_reward_priorities_and_constants() -> None:
-    obstacle = np.array([True, True, False, False, False])
-    goal = np.array([True, False, True, True, False])
-    improved = np.array([True, True, True, False, False])
-    r = paper_reward(obstacle, goal, improved)
-    assert r.tolist() == [-100.0, -100.0, 200.0, 200.0, 0.0]
-    c = RewardConstants(crash=-200.0, goal=50.0, progress=1.0)
-    r = paper_reward(np.array([False, True]), np.array([False, False]), np.array([True, True]), c)
-    assert r.tolist() == [1.0, -200.0]
-    for o, g, i in zip(obstacle, goal, improved, strict=True):
-        assert paper_reward_one(bool(o), bool(g), bool(i)) == paper_reward(o, g, i)
-    assert paper_reward_one(False, False, True, c) == 1.0
 
 
 def _hairpin() -> Guide:
