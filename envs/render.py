@@ -13,11 +13,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from matplotlib.patches import Circle, Rectangle
-from matplotlib.patches import Polygon as PolygonPatch
+from matplotlib.patches import Circle
 
 from envs.observation import HEADING_FEATURES
-from planner.geometry.shapes import Ball, Box, Polygon, Shape
+from planner.plot import shape_patch
 
 if TYPE_CHECKING:
     from envs.nav_env import NavEnv
@@ -30,21 +29,6 @@ TRAIL = "#d0301f"
 SIZE_PX = 480
 
 
-def _patch(shape: Shape, axes: tuple[int, int], colour: str, alpha: float) -> Any:
-    """A matplotlib patch of ``shape`` projected on the workspace axes ``axes``."""
-    i, j = axes
-    if isinstance(shape, Box):
-        lo, hi = shape.lo, shape.hi
-        return Rectangle(
-            (lo[i], lo[j]), hi[i] - lo[i], hi[j] - lo[j], color=colour, alpha=alpha, lw=0
-        )
-    if isinstance(shape, Ball):
-        return Circle((shape.center[i], shape.center[j]), shape.radius, color=colour, alpha=alpha)
-    if isinstance(shape, Polygon):
-        return PolygonPatch(shape.vertices, closed=True, color=colour, alpha=alpha, lw=0)
-    raise TypeError(f"cannot draw {type(shape).__name__}")
-
-
 def _panel(ax: Any, env: NavEnv, axes: tuple[int, int]) -> None:
     i, j = axes
     world = env.world
@@ -55,9 +39,9 @@ def _panel(ax: Any, env: NavEnv, axes: tuple[int, int]) -> None:
     ax.set_xlabel("xyz"[i], fontsize=8)
     ax.set_ylabel("xyz"[j], fontsize=8)
     for shape in world.obstacles:
-        ax.add_patch(_patch(shape, axes, OBSTACLE, 0.9))
+        ax.add_patch(shape_patch(shape, OBSTACLE, 0.9, axes))
     for name, shape in world.regions.items():
-        ax.add_patch(_patch(shape, axes, REGION, 0.5))
+        ax.add_patch(shape_patch(shape, REGION, 0.5, axes))
         lo, hi = shape.bounding_box()
         ax.annotate(name, ((lo[i] + hi[i]) / 2, (lo[j] + hi[j]) / 2), ha="center", fontsize=8)
     reached = env.progress_index

@@ -1,19 +1,21 @@
-"""Pictures of a world and a mission plan (matplotlib, imported lazily by callers)."""
+"""Pictures of a world and a mission plan (matplotlib, imported lazily by callers), and the one
+drawing of a workspace shape that every picture (``envs.render``, ``workers.bundle``) uses.
+
+Importing this module loads matplotlib's patches but neither pyplot nor a backend: an env that
+renders frames must not switch the backend of the process it runs in. :func:`plot_plan` selects
+the file backend (Agg) when it draws.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.patches import Circle, Rectangle
 from matplotlib.patches import Polygon as PolygonPatch
 
-from planner.geometry.shapes import Ball, Box, Polygon
+from planner.geometry.shapes import Ball, Box, Polygon, Shape
 from planner.geometry.world import World
 from planner.guidance import Guide
 
@@ -29,22 +31,30 @@ BALL_COLOUR = "#c8a000"
 
 def plot_plan(world: World, plan: MissionPlan, out: Path, title: str = "") -> None:
     """Draw obstacles, labelled regions, prefix and suffix, and each sub-task's r-balls."""
-    figure = _plot_2d(world, plan) if world.dim == 2 else _plot_3d(world, plan)
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure = plt.figure(figsize=(7, 7) if world.dim == 2 else (8, 7))
+    if world.dim == 2:
+        _plot_2d(figure.add_subplot(), world, plan)
+    else:
+        _plot_3d(figure.add_subplot(projection="3d"), world, plan)
     if title:
         figure.suptitle(title)
     figure.savefig(out, dpi=110, bbox_inches="tight")
     plt.close(figure)
 
 
-def _plot_2d(world: World, plan: MissionPlan) -> Any:
-    figure, axes = plt.subplots(figsize=(7, 7))
+def _plot_2d(axes: Any, world: World, plan: MissionPlan) -> None:
     axes.set_xlim(*world.bounds[0])
     axes.set_ylim(*world.bounds[1])
     axes.set_aspect("equal")
     for shape in world.obstacles:
-        axes.add_patch(_patch(shape, OBSTACLE_COLOUR, alpha=0.9))
+        axes.add_patch(shape_patch(shape, OBSTACLE_COLOUR, alpha=0.9))
     for label, shape in world.regions.items():
-        axes.add_patch(_patch(shape, REGION_COLOUR, alpha=0.55))
+        axes.add_patch(shape_patch(shape, REGION_COLOUR, alpha=0.55))
         centre = np.mean(shape.bounding_box(), axis=0)
         axes.annotate(label, centre, ha="center", va="center", fontsize=9, weight="bold")
     for sub in plan.subtasks:
@@ -58,12 +68,9 @@ def _plot_2d(world: World, plan: MissionPlan) -> Any:
         axes.plot(suffix[:, 0], suffix[:, 1], "--", color=SUFFIX_COLOUR, lw=2, label="suffix")
     axes.plot(*prefix[0, :2], "o", color="black", label="start")
     axes.legend(loc="upper right", fontsize=8)
-    return figure
 
 
-def _plot_3d(world: World, plan: MissionPlan) -> Any:
-    figure = plt.figure(figsize=(8, 7))
-    axes = figure.add_subplot(projection="3d")
+def _plot_3d(axes: Any, world: World, plan: MissionPlan) -> None:
     for dim, setter in enumerate((axes.set_xlim, axes.set_ylim, axes.set_zlim)):
         setter(*world.bounds[dim])
     for shape in world.obstacles:
@@ -93,15 +100,20 @@ def _plot_3d(world: World, plan: MissionPlan) -> Any:
         axes.scatter(centres[:, 0], centres[:, 1], centres[:, 2], color=BALL_COLOUR, s=6)
     axes.scatter(*prefix[0], color="black", s=30, label="start")
     axes.legend(loc="upper right", fontsize=8)
-    return figure
 
 
-def _patch(shape: Box | Ball | Polygon | object, colour: str, alpha: float) -> Any:
+def shape_patch(shape: Shape, colour: str, alpha: float, axes: tuple[int, int] = (0, 1)) -> Any:
+    """A filled matplotlib patch of ``shape`` projected on the workspace axes ``axes`` (x-y by
+    default; a polygon is planar and drawn as it is)."""
+    i, j = axes
     if isinstance(shape, Box):
-        size = shape.hi - shape.lo
-        return Rectangle(tuple(shape.lo[:2]), size[0], size[1], color=colour, alpha=alpha, lw=0)
+        lo, hi = shape.lo, shape.hi
+        return Rectangle(
+            (lo[i], lo[j]), hi[i] - lo[i], hi[j] - lo[j], color=colour, alpha=alpha, lw=0
+        )
     if isinstance(shape, Ball):
-        return Circle(tuple(shape.center[:2]), shape.radius, color=colour, alpha=alpha, lw=0)
+        centre = (shape.center[i], shape.center[j])
+        return Circle(centre, shape.radius, color=colour, alpha=alpha, lw=0)
     if isinstance(shape, Polygon):
         return PolygonPatch(shape.vertices, closed=True, color=colour, alpha=alpha, lw=0)
     raise TypeError(f"cannot draw shape {shape!r}")

@@ -24,15 +24,12 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
-from matplotlib.patches import Circle, Rectangle
-from matplotlib.patches import Polygon as PolygonPatch
 
 from envs.factory import subtask_guides
 from envs.options import EnvOptions
-from planner.geometry.shapes import Ball, Box, Polygon
 from planner.geometry.world import World
 from planner.plan import MissionPlan
-from planner.plot import plot_plan
+from planner.plot import plot_plan, shape_patch
 from planner.serialize import plan_to_dict
 from workers.evaluation import MissionEvaluation
 from workers.mission import MissionSpec
@@ -255,9 +252,9 @@ def plot_rollouts(
     if not three:
         axes.set_aspect("equal")
         for shape in world.obstacles:
-            axes.add_patch(_patch(shape, "#555555"))
+            axes.add_patch(shape_patch(shape, "#555555", 0.7))
         for name, shape in world.regions.items():
-            axes.add_patch(_patch(shape, "#7fbf7f"))
+            axes.add_patch(shape_patch(shape, "#7fbf7f", 0.7))
             axes.annotate(name, tuple(shape.bounding_box()[0][:2]), fontsize=8)
     axes.set_xlim(*world.bounds[0])
     axes.set_ylim(*world.bounds[1])
@@ -272,14 +269,3 @@ def plot_rollouts(
         axes.set_title(f"mission success {100 * evaluation.success_rate:.0f} %")
     figure.savefig(out, dpi=100, bbox_inches="tight")
     plt.close(figure)
-
-
-def _patch(shape: object, colour: str) -> Any:
-    if isinstance(shape, Box):
-        size = shape.hi - shape.lo
-        return Rectangle(tuple(shape.lo[:2]), size[0], size[1], color=colour, alpha=0.7, lw=0)
-    if isinstance(shape, Ball):
-        return Circle(tuple(shape.center[:2]), shape.radius, color=colour, alpha=0.7, lw=0)
-    if isinstance(shape, Polygon):
-        return PolygonPatch(shape.vertices, closed=True, color=colour, alpha=0.7, lw=0)
-    raise BundleError(f"cannot draw shape {shape!r}")
