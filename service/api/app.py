@@ -16,9 +16,9 @@ from starlette.concurrency import run_in_threadpool
 
 from service.api import events, missions, system
 from service.api.body_limit import BodyLimit
+from service.api.deps import Enqueue, Services
 from service.api.errors import install_handlers
 from service.api.schemas import ExampleRequest
-from service.api.state import Enqueue, Services
 from service.db import Database
 from service.settings import Settings, get_settings
 from workers.mission import MissionSpec

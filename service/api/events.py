@@ -19,10 +19,9 @@ from fastapi.sse import format_sse_event
 from starlette.concurrency import run_in_threadpool
 
 from service import repository as repo
-from service.api.auth import Caller
-from service.api.missions import NOT_FOUND, MissionId, owned_mission
+from service.api.deps import OwnedMission, Services, ServicesDep
 from service.api.queries import mission_status
-from service.api.state import Deps, Services
+from service.api.schemas import INVALID, NOT_FOUND
 from service.models import Event, MissionStatus
 
 router = APIRouter(tags=["missions"])
@@ -91,6 +90,7 @@ async def event_stream(
     response_class=StreamingResponse,
     responses={
         **NOT_FOUND,
+        **INVALID,
         200: {
             "description": "Server-Sent Events: `status`, `job`, `progress`, `cancel`, ... "
             "with the event id, then `end` when the mission is final.",
@@ -99,9 +99,8 @@ async def event_stream(
     },
 )
 async def mission_events(
-    mission_id: MissionId,
-    deps: Deps,
-    api_key: Caller,
+    mission: OwnedMission,
+    deps: ServicesDep,
     last_event_id: Annotated[
         int | None, Header(alias="Last-Event-ID", ge=0, le=MAX_EVENT_ID)
     ] = None,
@@ -111,15 +110,9 @@ async def mission_events(
     once: Annotated[bool, Query(description="Send the events so far and end (polling).")] = False,
 ) -> StreamingResponse:
     """Progress of a mission as Server-Sent Events, ending when the mission is final."""
-
-    def check() -> str:
-        with deps.database.session() as session:
-            return owned_mission(session, mission_id, api_key).id
-
-    found = await run_in_threadpool(check)
     start = max(after or 0, last_event_id or 0)
     return StreamingResponse(
-        event_stream(deps, found, start, once),
+        event_stream(deps, mission.id, start, once),
         media_type="text/event-stream",
         headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
     )

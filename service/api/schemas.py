@@ -1,4 +1,5 @@
-"""Response and request models of the API (they document ``/openapi.json``)."""
+"""Request and response models of the API (they document ``/openapi.json``), and the error
+responses the routes share."""
 
 from __future__ import annotations
 
@@ -152,3 +153,16 @@ class Health(BaseModel):
     broker: ComponentState
     open: bool = Field(description="True when no API keys are configured (no authentication).")
     problems: dict[str, str] = Field(default_factory=dict)
+
+
+UNAUTHORIZED: dict[int | str, dict[str, Any]] = {
+    401: {"model": Message, "description": "Missing or invalid API key."},
+}
+INVALID: dict[int | str, dict[str, Any]] = {
+    422: {"model": Problems, "description": "A parameter or the body is invalid (located)."},
+}
+NOT_FOUND: dict[int | str, dict[str, Any]] = {
+    **UNAUTHORIZED,
+    404: {"model": Message, "description": "No such mission for this API key."},
+}
+"""The error responses of a route on one mission (``/missions/{mission_id}...``)."""

@@ -8,8 +8,8 @@ from fastapi import APIRouter, HTTPException, status
 from fastapi.responses import FileResponse, JSONResponse
 
 from service.api import health
+from service.api.deps import ServicesDep
 from service.api.schemas import Examples, ExampleView, Health
-from service.api.state import Deps
 
 STATIC_DIR = Path(__file__).resolve().parents[1] / "static"
 """The dashboard's files (``service/static``)."""
@@ -23,7 +23,7 @@ router = APIRouter()
     response_model=Health,
     responses={503: {"model": Health, "description": "A dependency is down."}},
 )
-def healthz(deps: Deps) -> JSONResponse:
+def healthz(deps: ServicesDep) -> JSONResponse:
     """The API, the database and the broker: 200 when all are ok, else 503."""
     database, db_problem = health.database_state(deps.database)
     broker, broker_problem = health.broker_state(deps.settings)
@@ -45,8 +45,8 @@ def healthz(deps: Deps) -> JSONResponse:
     return JSONResponse(report.model_dump(), status_code=code)
 
 
-@router.get("/examples", tags=["system"])
-def examples(deps: Deps) -> Examples:
+@router.get("/examples", tags=["system"], response_model=Examples)
+def examples(deps: ServicesDep) -> Examples:
     """The bundled example missions (submit one with ``{"example": name}``)."""
     return Examples(
         examples=[
