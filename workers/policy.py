@@ -11,7 +11,7 @@ spaces, and its weights are read with ``torch.load(..., weights_only=True)``. Th
 stay ordinary stable-baselines3 archives (``SAC.load`` opens them, for files one trusts).
 
 ``ConcatenatedPolicy.load(path)`` needs only the bundle, stable-baselines3 and
-``planner``/``envs``: ``make_env()`` gives the mission env (``workers.evaluation.MissionEnv``,
+``planner``/``envs``: ``make_env()`` gives the mission env (``envs.mission_env.MissionEnv``,
 which hands the robot from sub-task env to sub-task env when a goal region is reached) and
 ``reset(obs)`` / ``act(obs)`` pick the sub-policy of the current stage, cycling the suffix.
 """
@@ -32,12 +32,13 @@ from stable_baselines3 import DDPG, PPO, SAC, TD3
 from stable_baselines3.common.policies import BasePolicy
 
 from envs.errors import EnvConfigError
+from envs.mission_env import MissionEnv
 from envs.options import EnvOptions
 from planner.decompose import subtask_at
 from planner.errors import LtlnavError
 from planner.plan import MissionPlan
 from planner.serialize import plan_from_dict
-from workers.evaluation import MissionEnv, MissionEvaluation, rollout_mission
+from workers.evaluation import MissionEvaluation, rollout_mission
 from workers.mission import MissionError, MissionSpec, parse_mission
 from workers.training_spec import ACTIVATIONS
 

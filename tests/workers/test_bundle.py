@@ -14,11 +14,12 @@ import pytest
 from gymnasium import spaces
 from stable_baselines3 import SAC
 
+from envs.mission_env import MissionEnv
 from planner.errors import LtlnavError
 from planner.plan import MissionPlan, plan_mission
 from planner.serialize import plan_to_dict
 from workers.bundle import BundleError, ConcatenatedPolicy, read_bundle, write_bundle
-from workers.evaluation import MissionEnv, rollout_mission, stage_policies
+from workers.evaluation import rollout_mission, stage_policies
 from workers.mission import MissionSpec
 from workers.training import TrainResult, train_subtask
 from workers.training_spec import SubtaskJob

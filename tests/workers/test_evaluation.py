@@ -7,11 +7,11 @@ from collections.abc import Callable
 
 import numpy as np
 
+from envs.mission_env import MissionEnv
 from envs.nav_env import NavEnv
 from planner.decompose import lasso_stages
 from planner.plan import MissionPlan
 from workers.evaluation import (
-    MissionEnv,
     evaluate_subtask,
     rollout_mission,
     stage_policies,
