@@ -6,22 +6,17 @@ from __future__ import annotations
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
-from typing import Any
 
 from fastapi import FastAPI
-from fastapi.openapi.utils import get_openapi
 from fastapi.staticfiles import StaticFiles
-from pydantic.json_schema import models_json_schema
 from starlette.concurrency import run_in_threadpool
 
 from service.api import events, missions, system
 from service.api.body_limit import BodyLimit
 from service.api.deps import Enqueue, Services
 from service.api.errors import install_handlers
-from service.api.schemas import ExampleRequest
 from service.db import Database
 from service.settings import Settings, get_settings
-from workers.mission import MissionSpec
 
 log = logging.getLogger("ltlnav.api")
 
@@ -53,24 +48,6 @@ async def warm_up_enqueue() -> None:
     """Import the Celery task module (Celery, kombu's transports: about a second) at start-up
     rather than in the first submission."""
     await run_in_threadpool(_import_worker_code)
-
-
-def _openapi(app: FastAPI) -> dict[str, Any]:
-    if app.openapi_schema is None:
-        schema = get_openapi(
-            title=app.title,
-            version=app.version,
-            description=app.description,
-            routes=app.routes,
-        )
-        _, definitions = models_json_schema(
-            [(MissionSpec, "validation"), (ExampleRequest, "validation")],
-            ref_template="#/components/schemas/{model}",
-        )
-        components = schema.setdefault("components", {}).setdefault("schemas", {})
-        components.update(definitions["$defs"])
-        app.openapi_schema = schema
-    return app.openapi_schema
 
 
 def create_app(settings: Settings | None = None, enqueue: Enqueue | None = None) -> FastAPI:
@@ -109,7 +86,6 @@ def create_app(settings: Settings | None = None, enqueue: Enqueue | None = None)
     app.include_router(system.router)
     if system.STATIC_DIR.is_dir():
         app.mount("/static", StaticFiles(directory=system.STATIC_DIR), name="static")
-    app.openapi = lambda: _openapi(app)  # type: ignore[method-assign]
     return app
 
 

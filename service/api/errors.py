@@ -1,12 +1,19 @@
-"""Errors the routes raise and how the app renders them (never a 500 for bad input)."""
+"""How the app renders errors (never a 500 for bad input): located problems as
+``{"detail": [Problem, ...]}``, database outages as 503.
+
+Every validation problem, FastAPI's own (parameters) and the mission checks alike, is a
+``RequestValidationError`` rendered by one handler: 400 when the body is not JSON at all, else
+422."""
 
 from __future__ import annotations
 
 import logging
 import re
 from collections.abc import Sequence
+from typing import Any
 
 from fastapi import FastAPI, Request, status
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from sqlalchemy.exc import DBAPIError, OperationalError
 
@@ -14,16 +21,10 @@ from service.api.schemas import Problem
 
 log = logging.getLogger(__name__)
 
+JSON_INVALID = "json_invalid"
+"""The ``type`` of a problem saying the body is not JSON (answered 400)."""
+
 _COLUMN = re.compile(r"\bcolumn (\d+)\b")
-
-
-class ProblemsError(Exception):
-    """A request rejected with located problems (``{"detail": [Problem, ...]}``)."""
-
-    def __init__(self, status_code: int, problems: Sequence[Problem]) -> None:
-        self.status_code = status_code
-        self.problems = list(problems)
-        super().__init__("; ".join(p.msg for p in self.problems))
 
 
 def _loc_part(part: str) -> str | int:
@@ -44,10 +45,30 @@ def body_problem(path: str, message: str, kind: str = "mission") -> Problem:
     )
 
 
-async def _problems_handler(request: Request, error: Exception) -> JSONResponse:
-    assert isinstance(error, ProblemsError)
-    content = {"detail": [p.model_dump(exclude_none=True) for p in error.problems]}
-    return JSONResponse(content, status_code=error.status_code)
+def invalid(problems: Sequence[Problem]) -> RequestValidationError:
+    """The error that answers ``problems`` through the app's validation handler."""
+    return RequestValidationError([p.model_dump(exclude_none=True) for p in problems])
+
+
+def _problem(error: Any) -> Problem:
+    # FastAPI's errors are pydantic's dicts (loc, msg, type, input, ctx); ours are dumped
+    # ``Problem``s, with their field and formula column.
+    return Problem(
+        loc=list(error.get("loc", ())),
+        msg=str(error.get("msg", "")),
+        type=str(error.get("type", "")),
+        field=error.get("field"),
+        column=error.get("column"),
+    )
+
+
+async def _validation_handler(request: Request, error: Exception) -> JSONResponse:
+    assert isinstance(error, RequestValidationError)
+    problems = [_problem(e) for e in error.errors()]
+    syntax = bool(problems) and all(p.type == JSON_INVALID for p in problems)
+    code = status.HTTP_400_BAD_REQUEST if syntax else status.HTTP_422_UNPROCESSABLE_CONTENT
+    content = {"detail": [p.model_dump(exclude_none=True) for p in problems]}
+    return JSONResponse(content, status_code=code)
 
 
 _MISSING_TABLE = ("no such table", "UndefinedTable")
@@ -63,7 +84,7 @@ async def _database_handler(request: Request, error: Exception) -> JSONResponse:
 
 
 def install_handlers(app: FastAPI) -> None:
-    """Render ``ProblemsError`` and database outages (503) as JSON."""
-    app.add_exception_handler(ProblemsError, _problems_handler)
+    """Render validation problems (400/422) and database outages (503) as JSON."""
+    app.add_exception_handler(RequestValidationError, _validation_handler)
     app.add_exception_handler(OperationalError, _database_handler)
     app.add_exception_handler(DBAPIError, _database_handler)

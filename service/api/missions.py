@@ -5,14 +5,14 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path as FilePath
-from typing import Annotated, Any
+from typing import Annotated
 
-from fastapi import APIRouter, HTTPException, Path, Query, Request, status
+from fastapi import APIRouter, HTTPException, Path, Query, status
 from fastapi.responses import FileResponse
-from starlette.concurrency import run_in_threadpool
 
 from service import repository as repo
-from service.api.deps import Caller, OwnedMission, Services, ServicesDep, SessionDep
+from service.api.deps import Caller, OwnedMission, ServicesDep, SessionDep
+from service.api.json_body import JsonBodyRoute
 from service.api.queries import cancel_if_queued
 from service.api.schemas import (
     INVALID,
@@ -25,48 +25,17 @@ from service.api.schemas import (
     Problems,
     Submitted,
 )
-from service.api.submission import submission
+from service.api.submission import ValidSubmission
 from service.api.views import curve_point, mission_links, mission_view
 from service.models import MissionStatus
 
 log = logging.getLogger(__name__)
 
-router = APIRouter(prefix="/missions", tags=["missions"])
+router = APIRouter(prefix="/missions", tags=["missions"], route_class=JsonBodyRoute)
 
 MAX_PAGE = 100
 MAX_OFFSET = 2**31 - 1
 MAX_SUBTASK = 10_000
-
-
-SUBMIT_BODY: dict[str, Any] = {
-    "requestBody": {
-        "required": True,
-        "content": {
-            "application/json": {
-                "schema": {
-                    "oneOf": [
-                        {"$ref": "#/components/schemas/MissionSpec"},
-                        {"$ref": "#/components/schemas/ExampleRequest"},
-                    ]
-                }
-            }
-        },
-    }
-}
-"""The submission body; its schemas join the OpenAPI components (see ``app.openapi_schema``)."""
-
-
-def _create(deps: Services, raw: bytes, api_key: str | None) -> Submitted:
-    sub = submission(raw, deps.examples)
-    with deps.database.session() as session:
-        mission = repo.create_mission(session, sub.spec.name, sub.document, api_key)
-        mission_id, mission_status = mission.id, mission.status
-    try:
-        deps.enqueue(mission_id)
-    except Exception:
-        # The mission is committed and queued: the workers' reconciler enqueues it later.
-        log.exception("mission %s stored but not enqueued; the reconciler will retry", mission_id)
-    return Submitted(id=mission_id, status=mission_status, links=mission_links(mission_id, []))
 
 
 @router.post(
@@ -79,15 +48,24 @@ def _create(deps: Services, raw: bytes, api_key: str | None) -> Submitted:
         413: {"model": Message, "description": "The body is larger than the limit."},
         422: {"model": Problems, "description": "The mission is invalid (field paths)."},
     },
-    openapi_extra=SUBMIT_BODY,
 )
-async def submit_mission(request: Request, deps: ServicesDep, api_key: Caller) -> Submitted:
+def submit_mission(
+    api_key: Caller, submission: ValidSubmission, session: SessionDep, deps: ServicesDep
+) -> Submitted:
     """Submit a mission document (the schema of the mission files) or ``{"example": name}``.
 
-    It is validated fully (syntax, formula, world, robot) before it is queued; planning and
-    training happen on the workers. An infeasible mission ends ``failed`` with the reason."""
-    raw = await request.body()
-    return await run_in_threadpool(_create, deps, raw, api_key)
+    It is validated fully (syntax, formula, world, robot) before it is stored and queued;
+    planning and training happen on the workers. An infeasible mission ends ``failed`` with
+    the reason."""
+    spec = submission.spec
+    mission = repo.create_mission(session, spec.name, submission.document, api_key)
+    session.commit()  # before the enqueue: the workers must find the mission
+    try:
+        deps.enqueue(mission.id)
+    except Exception:
+        # The mission is committed and queued: the workers' reconciler enqueues it later.
+        log.exception("mission %s stored but not enqueued; the reconciler will retry", mission.id)
+    return Submitted(id=mission.id, status=mission.status, links=mission_links(mission.id, []))
 
 
 @router.get("", response_model=MissionPageView, responses={**UNAUTHORIZED, **INVALID})

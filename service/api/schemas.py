@@ -4,11 +4,12 @@ responses the routes share."""
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag
 
 from service.models import JobStatus, MissionStatus
+from workers.mission import MissionSpec
 
 
 class Message(BaseModel):
@@ -39,6 +40,23 @@ class ExampleRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
     example: str = Field(description="Name of the example (its file name without extension).")
+
+
+SubmissionKind = Literal["mission", "example"]
+
+
+def submission_kind(body: Any) -> SubmissionKind:
+    """Which form of ``MissionCreate`` a body is: exactly one key ``example`` names an example,
+    anything else is read as a mission document (and validated as one)."""
+    return "example" if isinstance(body, dict) and set(body) == {"example"} else "mission"
+
+
+MissionCreate = Annotated[
+    Annotated[MissionSpec, Tag("mission")] | Annotated[ExampleRequest, Tag("example")],
+    Discriminator(submission_kind),
+]
+"""The body of ``POST /missions``: a mission document (the schema of the mission files) or the
+name of a bundled example. The tagged union documents it as ``oneOf`` the two."""
 
 
 class MissionLinks(BaseModel):
