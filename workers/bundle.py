@@ -1,6 +1,6 @@
 """Write a mission's bundle: ``bundle.zip`` with everything needed to run it offline.
 
-Members: ``manifest.json`` (schema ``workers.policy.Manifest``: format and version, mission,
+Members: ``manifest.json`` (schema ``workers.manifest.Manifest``: format and version, mission,
 seeds, package versions, the automaton and the pruned one in HOA, the lasso, the exact plan, the
 ordered sub-tasks with their guides, model file names, learning curves and evaluations, the
 mission evaluation), ``models/subtask_<k>.zip`` (stable-baselines3 archives), ``README.md``
@@ -31,17 +31,17 @@ from planner.geometry.world import World
 from planner.plan import MissionPlan
 from planner.plot import plot_plan, shape_patch
 from planner.serialize import plan_to_dict
+from workers.bundle_reader import ConcatenatedPolicy, read_bundle
 from workers.evaluation import MissionEvaluation
-from workers.mission import MissionSpec
-from workers.policy import (
+from workers.manifest import (
     FORMAT,
     FORMAT_VERSION,
+    MANIFEST,
     BundleError,
-    ConcatenatedPolicy,
     Manifest,
     SubtaskEntry,
-    read_bundle,
 )
+from workers.mission import MissionSpec
 from workers.training import TrainResult
 
 __all__ = ["BundleError", "ConcatenatedPolicy", "read_bundle", "write_bundle"]
@@ -155,7 +155,7 @@ def write_bundle(
         manifest = manifest_for(mission, plan, results, evaluation, seeds, files)
         partial = out.with_name(out.name + ".partial")
         with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as archive:
-            archive.writestr("manifest.json", manifest.model_dump_json(indent=1))
+            archive.writestr(MANIFEST, manifest.model_dump_json(indent=1))
             archive.writestr("README.md", model_card(manifest))
             for name in pictures:
                 archive.write(Path(tmp) / name, name)

@@ -22,7 +22,7 @@ from service.api.app import create_app
 from service.db import upgrade
 from service.settings import Settings
 from tests.service.api_helpers import REPO, tiny
-from workers.policy import read_bundle
+from workers.bundle_reader import read_bundle
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
 

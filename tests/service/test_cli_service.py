@@ -26,7 +26,7 @@ from service.db import Database, upgrade
 from service.models import MissionStatus
 from service.settings import Settings
 from tests.service.api_helpers import REPO, advance, free_port, served, settings_for, tiny
-from workers.policy import read_bundle
+from workers.bundle_reader import read_bundle
 
 
 class FakeWorker:

@@ -307,7 +307,7 @@ def snapshot(page: Any) -> tuple[str, list[int]]:
 def test_submit_watch_progress_and_download_the_bundle(
     served: str, page: Any, tmp_path: Path
 ) -> None:
-    from workers.policy import read_bundle
+    from workers.bundle_reader import read_bundle
 
     page.goto(served + "/")
     page.select_option("#example", EXAMPLE)

@@ -242,7 +242,8 @@ def test_policies_of_other_algorithms_are_rebuilt_without_unpickling(
 ) -> None:
     from stable_baselines3 import PPO, TD3
 
-    from workers.policy import SubtaskEntry, build_policy
+    from workers.bundle_reader import build_policy
+    from workers.manifest import SubtaskEntry
     from workers.training_spec import TrainingSpec
 
     mission, plan, _, _ = trained

@@ -23,11 +23,11 @@ import json
 import re
 import zipfile
 from pathlib import Path, PurePosixPath
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import ValidationError
 from stable_baselines3 import DDPG, PPO, SAC, TD3
 from stable_baselines3.common.policies import BasePolicy
 
@@ -35,79 +35,18 @@ from envs.errors import EnvConfigError
 from envs.mission_env import MissionEnv
 from envs.options import EnvOptions
 from planner.decompose import subtask_at
-from planner.errors import LtlnavError
 from planner.plan import MissionPlan
 from planner.serialize import plan_from_dict
 from workers.evaluation import MissionEvaluation, rollout_mission
+from workers.manifest import FORMAT, FORMAT_VERSION, MANIFEST, BundleError, Manifest, SubtaskEntry
 from workers.mission import MissionError, MissionSpec, parse_mission
 from workers.training_spec import ACTIVATIONS
 
-FORMAT = "ltlnav-bundle"
-FORMAT_VERSION = 1
-MANIFEST = "manifest.json"
 MODEL_NAME = re.compile(r"models/subtask_[0-9]{1,4}\.zip")
 MODEL_MEMBERS = re.compile(r"data|_stable_baselines3_version|system_info\.txt|[A-Za-z0-9_.]+\.pth")
 """Members of a stable-baselines3 model archive."""
 MAX_MEMBER_BYTES = 512 * 1024 * 1024
 POLICY_CLASSES: dict[str, Any] = {"sac": SAC, "td3": TD3, "ddpg": DDPG, "ppo": PPO}
-
-
-class BundleError(LtlnavError):
-    """A file that is not a valid ltlnav bundle (corrupted, foreign, or unsafe)."""
-
-
-class SubtaskEntry(BaseModel):
-    """One sub-task of the bundle: its guide and trained model."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    index: int
-    phase: Literal["prefix", "suffix"]
-    goal: str
-    start: list[float]
-    path: list[list[float]]
-    """The plan's polyline of the sub-task."""
-    r_ball: float
-    guide_centers: list[list[float]]
-    """Centres of the r-balls of the guide the policy followed (the polyline's, or the redrawn
-    path's under ``eval_env.drivable_guide``)."""
-    model: str
-    algorithm: Literal["sac", "td3", "ddpg", "ppo"]
-    policy_kwargs: dict[str, Any]
-    seed: int
-    steps: int
-    policy_steps: int | None = None
-    """The kept policy's steps when not the last (``TrainResult.policy_steps``)."""
-    stopped: str
-    repairs: int = 0
-    """Hand-over repair rounds (``TrainResult.repairs``)."""
-    curve: list[tuple[int, float]]
-    evaluation: dict[str, Any] | None
-
-
-class Manifest(BaseModel):
-    """``manifest.json`` of a bundle (format ``ltlnav-bundle``, version 1)."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    format: Literal["ltlnav-bundle"]
-    format_version: int
-    created: str
-    mission: dict[str, Any]
-    seeds: dict[str, Any]
-    packages: dict[str, str]
-    automaton_hoa: str
-    pruned_automaton_hoa: str
-    lasso: dict[str, Any]
-    plan: dict[str, Any]
-    subtasks: list[SubtaskEntry]
-    cycles: int
-    mission_evaluation: dict[str, Any] | None
-    eval_env: dict[str, Any] | None = None
-    """The env options the policies were evaluated with and act under (``EnvOptions`` fields
-    but ``rewards``; they fix what an action means: ``min_forward``, ``guide_feedforward``).
-    None (bundles written before it was recorded): the mission's, under today's defaults."""
-    files: list[str]
 
 
 def _safe_name(name: str) -> bool:
@@ -304,14 +243,3 @@ class ConcatenatedPolicy:
 
     def close(self) -> None:
         self._probe.close()
-
-
-__all__ = [
-    "FORMAT",
-    "FORMAT_VERSION",
-    "BundleError",
-    "ConcatenatedPolicy",
-    "Manifest",
-    "SubtaskEntry",
-    "read_bundle",
-]
