@@ -361,7 +361,7 @@ def submit(
     from service.client import ServiceClient, ServiceError
     from service.serve import display_host
     from service.settings import Settings
-    from workers.mission_errors import read_document
+    from workers.documents import read_document
 
     path = Path(mission)
     if path.exists() or path.suffix:

@@ -34,7 +34,8 @@ from planner.geometry.world import World
 from planner.geometry.world_spec import RESERVED_LABEL, WorldSpec, raise_problems
 from planner.ltl.formula import atoms, check_mission_formula, parse
 from planner.search.planner_spec import PlannerSpec
-from workers.mission_errors import MissionError, problems_from_validation_error, read_document
+from workers.documents import read_document
+from workers.mission_errors import MissionError, problems_from_validation_error
 from workers.training_spec import TrainingSpec
 
 __all__ = ["MissionError", "MissionSpec", "load_mission", "parse_mission"]

@@ -1,20 +1,18 @@
-"""Located problems of a mission document: pydantic errors and file syntax errors as paths.
+"""Located problems of a mission document: pydantic errors as dotted paths.
 
-Every failure to read or validate a mission becomes ``(dotted path, short message)`` pairs, e.g.
+Every failure to validate a mission becomes ``(dotted path, short message)`` pairs, e.g.
 ``("world.regions.g1.ball.radius", "must be > 0")``: pydantic's locations lose their dict-key
-markers and union tags, its wording is shortened, and YAML/JSON syntax errors name their line.
+markers and union tags and its wording is shortened. (A file that cannot be parsed at all is
+``workers.documents``' ``ValueError``, which names the line.)
 """
 
 from __future__ import annotations
 
-import json
 import types
 import typing
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Annotated, Any
 
-import yaml
 from pydantic import BaseModel, ValidationError
 
 from planner.errors import LtlnavError
@@ -155,44 +153,3 @@ def problems_from_validation_error(
             continue
         problems.append((".".join(parts) or "mission", _message(err, parts, root)))
     return problems
-
-
-class _UniqueKeyLoader(yaml.SafeLoader):
-    """A safe YAML loader that rejects a key repeated in one mapping (YAML keeps the last)."""
-
-    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
-        seen: set[Any] = set()
-        for key_node, _ in node.value:
-            key = self.construct_object(key_node, deep=deep)
-            if key in seen:
-                raise yaml.constructor.ConstructorError(
-                    None, None, f"duplicate key '{key}'", key_node.start_mark
-                )
-            seen.add(key)
-        return super().construct_mapping(node, deep=deep)
-
-
-def read_document(path: Path) -> Any:
-    """Parse a YAML or JSON file; ``ValueError`` names the line of a syntax error."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as err:
-        reason = err.strerror if isinstance(err, OSError) and err.strerror else str(err)
-        raise ValueError(f"cannot read the file: {reason}") from err
-    if not text.strip():
-        raise ValueError("the file is empty")
-    suffix = path.suffix.lower()
-    if suffix == ".json" or (suffix not in (".yaml", ".yml") and text.lstrip().startswith("{")):
-        try:
-            return json.loads(text)
-        except json.JSONDecodeError as err:
-            raise ValueError(
-                f"invalid JSON at line {err.lineno}, column {err.colno}: {err.msg}"
-            ) from err
-    try:
-        return yaml.load(text, Loader=_UniqueKeyLoader)
-    except yaml.YAMLError as err:
-        mark = getattr(err, "problem_mark", None) or getattr(err, "context_mark", None)
-        problem = getattr(err, "problem", None) or str(err)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        raise ValueError(f"invalid YAML{where}: {problem}") from err

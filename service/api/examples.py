@@ -9,8 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from planner.errors import LtlnavError
+from workers.documents import read_document
 from workers.mission import MissionSpec, parse_mission
-from workers.mission_errors import read_document
 
 log = logging.getLogger(__name__)
 
