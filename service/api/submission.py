@@ -4,7 +4,8 @@ The body is documented as ``MissionCreate`` (a mission document or ``{"example":
 arrives as decoded JSON (``MissionBody``); ``valid_submission`` validates it with
 ``workers.mission.parse_mission``, the validation of the CLI, so a problem reads the same
 everywhere: its field path, the formula column for the task, unknown labels found even when
-another section is invalid."""
+another section is invalid. A valid mission that the service can never run (``servable_problems``)
+is refused the same way, before anything is stored."""
 
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ from service.api.examples import ExampleCatalogue
 from service.api.json_body import decode_json
 from service.api.schemas import MissionCreate, submission_kind
 from workers.mission import MissionError, MissionSpec, parse_mission
+from workers.run import servable_problems
 
 log = logging.getLogger(__name__)
 
@@ -69,7 +71,7 @@ world is built and sampled), left to ``valid_submission`` in a worker thread."""
 
 @dataclass(frozen=True)
 class Submission:
-    """A valid mission: the document to store and its validated spec."""
+    """A mission the service can run: the document to store and its validated spec."""
 
     document: dict[str, Any]
     spec: MissionSpec
@@ -99,13 +101,26 @@ def _example(name: Any, catalogue: ExampleCatalogue) -> Submission:
     return Submission(document=example.document, spec=example.spec)
 
 
+def _refuse_unservable(spec: MissionSpec, by_name: bool) -> None:
+    """422 when the service can never train and bundle ``spec``, whatever it is given."""
+    problems = servable_problems(spec)
+    if by_name:  # the fields are in the example's file, not in the body
+        problems = [("example", f"{field}: {reason}") for field, reason in problems]
+    if problems:
+        raise invalid([body_problem(path, reason, "unservable") for path, reason in problems])
+
+
 def valid_submission(body: MissionBody, deps: ServicesDep) -> Submission:
-    """The mission of the body, validated fully (syntax, formula, world, robot); else 422 with
-    every problem located. A plain function, so FastAPI runs it in a worker thread, off the
-    event loop."""
-    if submission_kind(body) == "example":
-        return _example(body["example"], deps.examples)
-    return Submission(document=body, spec=_validate(body))
+    """The mission of the body, validated fully (syntax, formula, world, robot) and one the
+    service can train and bundle; else 422 with every problem located. A plain function, so
+    FastAPI runs it in a worker thread, off the event loop."""
+    by_name = submission_kind(body) == "example"
+    if by_name:
+        submission = _example(body["example"], deps.examples)
+    else:
+        submission = Submission(document=body, spec=_validate(body))
+    _refuse_unservable(submission.spec, by_name)
+    return submission
 
 
 ValidSubmission = Annotated[Submission, Depends(valid_submission)]

@@ -152,6 +152,21 @@ def test_wrong_shapes_are_422(
     assert enqueue.calls == []
 
 
+def test_a_mission_the_service_cannot_run_is_422_and_not_stored(
+    setup: tuple[TestClient, RecordingEnqueue],
+) -> None:
+    """g-rrt trains one agent for the whole lasso: valid, but never servable (bundled per
+    sub-task), so it is refused at submission like any invalid field."""
+    http, enqueue = setup
+    response = http.post("/missions", json=_with(training__reward={"mode": "g-rrt"}))
+    assert response.status_code == 422, response.text
+    problem = _problems(response)["training.reward.mode"]
+    assert problem["loc"] == ["body", "training", "reward", "mode"]
+    assert "g-rrt" in problem["msg"]
+    assert enqueue.calls == []
+    assert http.get("/missions").json()["total"] == 0
+
+
 def test_oversize_bodies_are_413_declared_or_chunked(
     setup: tuple[TestClient, RecordingEnqueue],
 ) -> None:
