@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
+from starlette.types import Message, Receive, Scope, Send
 
 from service.api import health, system
 from service.db import Database
@@ -155,6 +156,29 @@ def test_progress_plan_curve_and_bundle(api: Api) -> None:
     assert bundle.headers["content-type"] == "application/zip"
     assert "tiny-gf2-bundle.zip" in bundle.headers["content-disposition"]
     assert bundle.content.startswith(b"PK")
+
+
+def test_responses_are_sent_without_a_database_session(api: Api) -> None:
+    """The request's session ends with its handler: no connection is held while a response,
+    a file above all, is sent."""
+    mission_id = api.submit()
+    advance(api.database, mission_id, api.artifacts, MissionStatus.done)
+    pool = api.app.state.services.database.engine.pool
+    held: list[int] = []
+
+    async def watched(scope: Scope, receive: Receive, send: Send) -> None:
+        async def watching_send(message: Message) -> None:
+            if message["type"] == "http.response.start":
+                held.append(pool.checkedout())
+            await send(message)
+
+        await api.app(scope, receive, watching_send)
+
+    http = TestClient(watched)
+    for path in ("", "/plan.png", "/subtasks/0/curve", "/bundle"):
+        assert http.get(f"/missions/{mission_id}{path}").status_code == 200
+    assert http.post(f"/missions/{mission_id}/cancel").status_code == 409
+    assert held == [0] * 5
 
 
 def test_failed_mission_reports_its_reason(api: Api) -> None:
