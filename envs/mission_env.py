@@ -58,7 +58,7 @@ class MissionEnv(gym.Env[np.ndarray, np.ndarray]):
         world: World | None = None,
     ) -> None:
         self.mission, self.plan = mission, plan
-        suffix = any(s.phase == "suffix" for s in plan.subtasks)
+        prefix, suffix = phases(plan.subtasks)
         self.cycles = cycles if suffix else 0
         """Suffix cycles of a rollout (0 for a finite task: no suffix sub-task)."""
         self.world = world if world is not None else mission.build_world()
@@ -71,7 +71,6 @@ class MissionEnv(gym.Env[np.ndarray, np.ndarray]):
             for sub in plan.subtasks
         ]
         self.sequence = lasso_stages(plan.subtasks, self.cycles)
-        prefix, suffix = phases(plan.subtasks)
         self.prefix_stages = len(prefix)
         self.suffix_length = len(self.sequence) - self.prefix_stages
         self.cycle_length = max(1, len(suffix))
