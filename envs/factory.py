@@ -21,7 +21,7 @@ import numpy as np
 from envs.drivable import clearances, redraw_course
 from envs.errors import EnvConfigError
 from envs.feedforward import Track
-from envs.handover import checked_starts, handover_poses
+from envs.handover import checked_starts, opening_pose, real_starts
 from envs.nav_env import Leg, NavEnv
 from envs.options import EnvOptions, options_with
 from envs.rewards import reward_mode
@@ -29,7 +29,7 @@ from envs.robots import Robot, RobotConfigError, make_robot, robot_class, robot_
 from envs.robots.racecar import WHEEL_RADIUS, RacecarParams
 from envs.spec import RobotSpec
 from planner.geometry.drivable import thin
-from planner.geometry.pose import Pose
+from planner.geometry.pose import Pose, heading_along
 from planner.geometry.region_test import RegionTest
 from planner.geometry.world import World
 from planner.guidance import Guide, ProgressTracker
@@ -165,28 +165,19 @@ def course(
     chosen = next((i for i, s in enumerate(listed) if s is subtasks[0]), None)
     pool = list(plan.subtasks) if plan is not None and chosen is not None else subtasks
     given = float(spec.start[world.dim]) if len(spec.start) > world.dim else None
-    first = np.asarray(pool[0].start, dtype=float)
-    facing = heading_along(np.asarray(pool[0].path, dtype=float))
-    if given is not None and np.allclose(first, start):
-        facing = given
+    opening = opening_pose(pool, start, given)
     rho = _turning_radius(opts, spec)
     if rho > 0:
         planned = plan.clearance if plan is not None else spec.radius
         steps = clearances(spec.radius, max(planned, spec.radius))
-        pool = redraw_course(world, pool, Pose(first, facing), rho, steps)
+        pool = redraw_course(world, pool, opening, rho, steps)
         subtasks = pool if whole_lasso else [pool[chosen or 0]]
     legs = build_course(
         world, spec.radius, subtasks, r_ball, dense=rho > 0, window=opts.progress_window
     )
-    heading = legs[0].headings[0]
-    if subtasks[0] is pool[0]:
-        heading = facing
-    elif given is not None and np.allclose(subtasks[0].start, start):
-        heading = given
-    real = [Pose(np.asarray(subtasks[0].start, dtype=float), heading)]
-    if plan is not None and opts.handover and not whole_lasso and chosen is not None:
-        mission_start = Pose(start, given if given is not None else facing)
-        real = handover_poses(world, pool, chosen, mission_start)
+    handover_of = chosen if opts.handover and not whole_lasso else None
+    guide_heading = legs[0].headings[0]
+    real = real_starts(world, pool, subtasks[0], handover_of, opening, start, given, guide_heading)
     return legs, real
 
 
@@ -309,15 +300,6 @@ def _turning_radius(options: EnvOptions, spec: RobotSpec) -> float:
             f"only for robots with a minimum turning radius (racecar), not a {spec.model}",
         )
     return options.drivable_guide * tightest
-
-
-def heading_along(path: np.ndarray) -> float:
-    """Yaw of the first non-degenerate segment of ``path`` (0 for a single point)."""
-    for p in path[1:]:
-        d = p - path[0]
-        if float(np.hypot(d[0], d[1])) > 1e-9:
-            return math.atan2(float(d[1]), float(d[0]))
-    return 0.0
 
 
 def nominal_speed(robot: Robot) -> float:

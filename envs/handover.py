@@ -1,4 +1,5 @@
-"""Where the concatenated policy hands the robot to a sub-task: its handover poses.
+"""Where the concatenated policy hands the robot to a sub-task: its handover poses, and so the
+real starts of every sub-task env (``real_starts``, used by ``envs.factory``).
 
 A mission rollout switches sub-policies in place: sub-task ``k`` takes over wherever the robot
 stands when the previous sub-task's goal region is first entered, heading the way it came.
@@ -25,7 +26,7 @@ import numpy as np
 
 from envs.errors import EnvConfigError
 from planner.decompose import SubTask, lasso_stages, phases
-from planner.geometry.pose import Pose
+from planner.geometry.pose import Pose, final_heading, heading_along, yaw
 from planner.geometry.region_test import RegionTest
 from planner.geometry.world import World
 
@@ -64,14 +65,51 @@ def arrival_pose(world: World, subtask: SubTask) -> Pose:
                 entered = travelled_inside >= 0.0
                 travelled_inside = travelled_inside + length / count if entered else 0.0
                 if travelled_inside >= INSIDE:
-                    return Pose(p, _yaw(b - a))
+                    return Pose(p, yaw(b - a))
             elif travelled_inside >= 0.0:
                 travelled_inside = -1.0
     if goal is not None and travelled_inside < 0.0 and not goal.contains(path[-1].tolist()):
         raise EnvConfigError(
             "subtask.path", f"sub-task {subtask.index}'s guide never enters region {subtask.goal!r}"
         )
-    return Pose(path[-1].copy(), _last_yaw(path))
+    return Pose(path[-1].copy(), final_heading(path))
+
+
+def opening_pose(pool: Sequence[SubTask], robot: np.ndarray, heading: float | None) -> Pose:
+    """The pose a rollout of ``pool`` begins in: the first sub-task's start, facing the robot's
+    given ``heading`` when the robot (standing at ``robot``) is there, else along the guide."""
+    first = np.asarray(pool[0].start, dtype=float)
+    if heading is not None and np.allclose(first, robot):
+        return Pose(first, heading)
+    return Pose(first, heading_along(np.asarray(pool[0].path, dtype=float)))
+
+
+def real_starts(
+    world: World,
+    pool: Sequence[SubTask],
+    subtask: SubTask,
+    handover_of: int | None,
+    opening: Pose,
+    robot: np.ndarray,
+    heading: float | None,
+    guide_heading: float,
+) -> list[Pose]:
+    """The real starts of an env whose first sub-task is ``subtask``, in the course ``pool``
+    that ``opening`` begins (``opening_pose``).
+
+    With ``handover_of`` (``subtask``'s position in ``pool``): the poses the mission hands it
+    over in, the mission starting where the robot stands (``robot``), facing its ``heading`` or
+    else as ``opening``. Otherwise ``subtask``'s start, facing as ``opening`` when it begins the
+    course, the robot's ``heading`` when the robot stands there, else ``guide_heading``."""
+    if handover_of is not None:
+        mission_start = Pose(robot, heading if heading is not None else opening.heading)
+        return handover_poses(world, pool, handover_of, mission_start)
+    facing = guide_heading
+    if subtask is pool[0]:
+        facing = opening.heading
+    elif heading is not None and np.allclose(subtask.start, robot):
+        facing = heading
+    return [Pose(np.asarray(subtask.start, dtype=float), facing)]
 
 
 def handover_poses(
@@ -83,17 +121,6 @@ def handover_poses(
         mission_start if p is None else arrival_pose(world, subtasks[p])
         for p in predecessors(subtasks, k)
     ]
-
-
-def _yaw(v: np.ndarray) -> float:
-    return math.atan2(float(v[1]), float(v[0]))
-
-
-def _last_yaw(path: np.ndarray) -> float:
-    for a, b in zip(path[-2::-1], path[:0:-1], strict=True):
-        if float(np.hypot(*(b - a)[:2])) > 1e-9:
-            return _yaw(b - a)
-    return 0.0
 
 
 def checked_starts(starts: Sequence[Pose], world: World) -> list[Pose]:
