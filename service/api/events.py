@@ -21,7 +21,7 @@ from starlette.concurrency import run_in_threadpool
 from service import repository as repo
 from service.api.deps import OwnedMission, Services, ServicesDep
 from service.api.queries import mission_status
-from service.api.schemas import INVALID, NOT_FOUND
+from service.api.schemas import MISSION_ERRORS
 from service.models import Event, MissionStatus
 
 router = APIRouter(tags=["missions"])
@@ -89,8 +89,7 @@ async def event_stream(
     "/missions/{mission_id}/events",
     response_class=StreamingResponse,
     responses={
-        **NOT_FOUND,
-        **INVALID,
+        **MISSION_ERRORS,
         200: {
             "description": "Server-Sent Events: `status`, `job`, `progress`, `cancel`, ... "
             "with the event id, then `end` when the mission is final.",

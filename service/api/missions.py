@@ -16,7 +16,7 @@ from service.api.json_body import JsonBodyRoute
 from service.api.queries import cancel_if_queued
 from service.api.schemas import (
     INVALID,
-    NOT_FOUND,
+    MISSION_ERRORS,
     UNAUTHORIZED,
     Curve,
     Message,
@@ -82,7 +82,7 @@ def list_missions(
     return MissionPageView(items=items, total=page.total, limit=limit, offset=offset)
 
 
-@router.get("/{mission_id}", response_model=MissionView, responses=NOT_FOUND)
+@router.get("/{mission_id}", response_model=MissionView, responses=MISSION_ERRORS)
 def get_mission(mission: OwnedMission) -> MissionView:
     """A mission: status, plan summary, each sub-task's job and the mission evaluation."""
     return mission_view(mission)
@@ -91,7 +91,7 @@ def get_mission(mission: OwnedMission) -> MissionView:
 @router.get(
     "/{mission_id}/plan.png",
     response_class=FileResponse,
-    responses={**NOT_FOUND, 200: {"content": {"image/png": {}}, "description": "The plan."}},
+    responses={**MISSION_ERRORS, 200: {"content": {"image/png": {}}, "description": "The plan."}},
 )
 def plan_picture(mission: OwnedMission) -> FileResponse:
     """The picture of the planned path (404 until the mission is planned)."""
@@ -105,7 +105,7 @@ def plan_picture(mission: OwnedMission) -> FileResponse:
 @router.get(
     "/{mission_id}/subtasks/{index}/curve",
     response_model=Curve,
-    responses={**NOT_FOUND, **INVALID},
+    responses=MISSION_ERRORS,
 )
 def learning_curve(
     mission: OwnedMission,
@@ -125,7 +125,7 @@ def learning_curve(
     "/{mission_id}/cancel",
     status_code=status.HTTP_202_ACCEPTED,
     response_model=MissionView,
-    responses={**NOT_FOUND, 409: {"model": Message, "description": "Already final."}},
+    responses={**MISSION_ERRORS, 409: {"model": Message, "description": "Already final."}},
 )
 def cancel_mission(mission: OwnedMission, session: SessionDep) -> MissionView:
     """Cooperative cancel: running jobs stop at their next check, finished checkpoints stay.
@@ -146,7 +146,7 @@ def cancel_mission(mission: OwnedMission, session: SessionDep) -> MissionView:
     "/{mission_id}/bundle",
     response_class=FileResponse,
     responses={
-        **NOT_FOUND,
+        **MISSION_ERRORS,
         200: {"content": {"application/zip": {}}, "description": "The policy bundle."},
         409: {"model": Message, "description": "The mission is not done."},
     },

@@ -179,8 +179,9 @@ UNAUTHORIZED: dict[int | str, dict[str, Any]] = {
 INVALID: dict[int | str, dict[str, Any]] = {
     422: {"model": Problems, "description": "A parameter or the body is invalid (located)."},
 }
-NOT_FOUND: dict[int | str, dict[str, Any]] = {
+MISSION_ERRORS: dict[int | str, dict[str, Any]] = {
     **UNAUTHORIZED,
+    **INVALID,
     404: {"model": Message, "description": "No such mission for this API key."},
 }
 """The error responses of a route on one mission (``/missions/{mission_id}...``)."""

@@ -361,6 +361,16 @@ def test_openapi_documents_every_route(api: Api) -> None:
     assert api.http.get("/docs").status_code == 200
 
 
+def test_openapi_body_examples_are_accepted(api: Api) -> None:
+    schema = api.http.get("/openapi.json").json()
+    body = schema["paths"]["/missions"]["post"]["requestBody"]["content"]["application/json"]
+    assert set(body["examples"]) == {"mission", "example"}
+    for example in body["examples"].values():
+        response = api.http.post("/missions", json=example["value"])
+        assert response.status_code == 201, response.text
+    assert "HTTPValidationError" not in schema["components"]["schemas"]  # 422s are Problems
+
+
 def test_unmigrated_database_says_so(tmp_path: Path) -> None:
     from service.api.app import create_app
 
