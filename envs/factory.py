@@ -330,7 +330,7 @@ def _subtask(subtask: SubTask | int | None, plan: MissionPlan | None) -> SubTask
                 "subtask", f"index {subtask} out of range: the plan has {len(plan.subtasks)}"
             )
         return plan.subtasks[int(subtask)]
-    # Checked by shape, not class: importing planner.decompose would pull in the planner.
+    # Checked by shape, not class: any object with a SubTask's fields will do.
     if all(hasattr(subtask, a) for a in ("start", "path", "goal", "nba_state", "next_nba_state")):
         return subtask
     raise EnvConfigError("subtask", f"expected a SubTask or an index, got {subtask!r}")

@@ -6,11 +6,12 @@ already), with scalar region tests (:mod:`planner.geometry.region_test`) fast en
 env step.
 
 TL-RRT* asks for the label of every new sample and for the number of label changes along every
-candidate edge, thousands of times per second. :class:`World` answers those questions exactly,
-shape by shape; this oracle answers the same questions for all regions at once with a few numpy
-operations (boxes, balls and polygons are stacked by kind), restricted to the regions the task
-talks about: only the formula's atoms can influence the automaton, so a label change of another
-region along an edge is irrelevant to the run. It agrees with :meth:`World.label_matrix` away
+candidate edge, thousands of times per second. :meth:`World.label_matrix` and
+:meth:`World.segments_label_changes` answer them exactly, shape by shape; this oracle answers
+the same questions for all regions at once with a few numpy operations (boxes, balls and
+polygons are stacked by kind), restricted to the regions the task talks about: only the
+formula's atoms can influence the automaton, so a label change of another region along an edge
+is irrelevant to the run. It agrees with :meth:`World.label_matrix` away
 from region boundaries (boundary points form a set of measure zero that random samples do not
 hit), and the planner re-checks the final lasso with the world's exact functions.
 
