@@ -87,7 +87,7 @@ class LabelOracle:
             else (np.int64(1) << np.arange(len(self.names), dtype=np.int64))
         )
         self._labels: dict[int, frozenset[str]] = {}
-        self._tests = [(1 << k, RegionTest(s).contains) for k, s in enumerate(shapes)]
+        self._tests = [(1 << k, RegionTest(s)) for k, s in enumerate(shapes)]
 
     def label(self, mask: int) -> frozenset[str]:
         """The frozenset of region names of a mask (cached)."""
@@ -100,8 +100,8 @@ class LabelOracle:
     def point_labels(self, x: Sequence[float]) -> frozenset[str]:
         """``L(x)`` over ``names`` for one point ``x`` (equal labels are the same object)."""
         mask = 0
-        for bit, contains in self._tests:
-            if contains(x):
+        for bit, test in self._tests:
+            if test.contains(x):
                 mask |= bit
         return self.label(mask)
 

@@ -38,6 +38,10 @@ class RegionTest:
             self._centre, self._radius = centre, radius
             self.contains = lambda x: math.dist(x, centre) <= radius
 
+    def __reduce__(self) -> tuple[type[RegionTest], tuple[Shape]]:
+        """Pickled as its shape (the fast tests are closures, rebuilt on unpickling)."""
+        return RegionTest, (self.shape,)
+
     def _generic_contains(self, x: Sequence[float]) -> bool:
         return bool(self.shape.contains(np.array([x], dtype=float))[0])
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pickle
+
 import numpy as np
 import pytest
 
@@ -40,3 +42,10 @@ def test_labeler_matches_the_world_labels() -> None:
     for x, row in zip(points, matrix, strict=True):
         in_row = {n for n, inside in zip(world.region_names, row, strict=True) if inside}
         assert labeler.point_labels(x.tolist()) == in_row
+
+
+def test_a_world_pickles_with_its_labeler() -> None:
+    world = world_2d()
+    again = pickle.loads(pickle.dumps(world))
+    for x in np.random.default_rng(2).uniform(0.0, 10.0, size=(100, 2)):
+        assert again.labels(x) == world.labels(x)
