@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 from workers.mission import load_mission  # noqa: E402
-from workers.pipeline import plan_for  # noqa: E402
+from workers.run import stored_or_new_plan  # noqa: E402
 
 
 def overhead(steps: int, repeats: int, mission_name: str) -> str:
@@ -38,12 +38,13 @@ def overhead(steps: int, repeats: int, mission_name: str) -> str:
     from stable_baselines3 import SAC
 
     from envs.robots import make_robot
-    from workers.training import hyperparameters, subtask_env
+    from workers.agents import hyperparameters
+    from workers.training import subtask_env
 
     torch.set_num_threads(1)
     mission = load_mission(ROOT / "examples" / f"{mission_name}.yaml")
     out = Path(os.environ.get("TMPDIR", "/tmp")) / "ltlnav-bench-overhead" / mission_name
-    plan = plan_for(mission, out)
+    plan = stored_or_new_plan(mission, out)
     training = mission.training
 
     class Bare(gym.Env[np.ndarray, np.ndarray]):

@@ -1,8 +1,8 @@
 """Table I of Cai et al. (RA-L 2023), measured with the production training code.
 
 Every row trains one mission's sub-tasks with one reward method and seed through the same
-functions as ``ltlnav train`` and the service (``workers.pipeline.plan_for`` / ``subtask_jobs``,
-``workers.training.train_subtask``, ``workers.pipeline.assemble``) into
+functions as ``ltlnav train`` and the service (a ``workers.run.MissionRun``: its ``jobs``,
+``train``, ``evaluate``, ``repair`` and ``finish``) into
 ``OUT/<mission>/<method>/seed<N>/``. Finished jobs are reused (``train_subtask`` returns the
 stored result, an interrupted one resumes from its checkpoint), so re-running the command after
 an interruption continues where it stopped and ``--report`` re-prints the table.
@@ -33,7 +33,7 @@ import signal
 import statistics
 import sys
 import zipfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
@@ -46,8 +46,9 @@ sys.path.insert(0, str(ROOT))
 
 import yaml  # noqa: E402
 
+from workers.jobs import SubtaskJob  # noqa: E402
 from workers.mission import MissionSpec, parse_mission  # noqa: E402
-from workers.training_spec import SubtaskJob  # noqa: E402
+from workers.run import MissionRun, stored_or_new_plan  # noqa: E402
 
 METHODS = ("rrt", "rrt-paper", "ned", "tl", "g-rrt")
 
@@ -138,56 +139,52 @@ def load_mission(name: str, row: Row) -> MissionSpec:
     return parse_mission(document)
 
 
-def row_jobs(row: Row, out: Path) -> tuple[MissionSpec, Any, list[SubtaskJob]]:
-    """The row's mission, its plan and its jobs. The plan is made once per mission and shared
-    by every row of it (``OUT/<mission>/plan.json``, copied into the row folder): the planner
-    refines for ``refine_seconds``, so planning per row would give each method and seed its own
-    guides."""
-    from workers.pipeline import plan_for, subtask_jobs
-
+def row_jobs(row: Row, out: Path) -> tuple[MissionRun, list[SubtaskJob]]:
+    """The row's run and its jobs. The plan is made once per mission and shared by every row
+    of it (``OUT/<mission>/plan.json``, copied into the row folder): the planner may refine for
+    ``refine_seconds``, so planning per row would give each method and seed its own guides.
+    The run is built directly, not opened: ``g-rrt`` rows train one agent, which the service
+    refuses to serve."""
     mission = load_mission(row.mission, row)
-    shared, own = out / row.mission / "plan.json", out / row.folder / "plan.json"
+    folder = out / row.folder
+    shared, own = out / row.mission / "plan.json", folder / "plan.json"
     if shared.is_file() and not own.is_file():
         own.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(shared, own)
-    plan = plan_for(mission, out / row.folder)
+    run = MissionRun(mission, stored_or_new_plan(mission, folder), folder)
     if not shared.is_file():
         shutil.copyfile(own, shared)
-    jobs = subtask_jobs(mission, plan)
+    jobs = run.jobs()
     if row.method == "g-rrt":
         jobs = jobs[:1]  # one agent for the whole lasso
     elif row.subtasks is not None:
         jobs = [jobs[k] for k in row.subtasks]
-    return mission, plan, jobs
+    return run, jobs
 
 
-def train_job(job: SubtaskJob, out_dir: str) -> dict[str, Any]:
+def train_job(run: MissionRun, job: SubtaskJob) -> dict[str, Any]:
     """One training job in a pool process (stored result when already finished)."""
-    from workers.training import train_subtask
-
-    return train_subtask(job, out_dir).to_json()
+    return run.train(job).to_json()
 
 
 def assemble_row(row: Row, out: Path, pool: ProcessPoolExecutor) -> None:
     """Whole-mission rollouts of a finished row, hand-over repair (its jobs on ``pool``) and
     its ``bundle.zip``, as ``ltlnav train`` does."""
-    from workers.pipeline import finish
     from workers.training import TrainResult
 
-    folder = out / row.folder
-    mission, plan, jobs = row_jobs(row, out)
+    run, jobs = row_jobs(row, out)
     results = [
-        TrainResult.from_json(
-            json.loads((folder / f"subtask_{j.subtask}" / "result.json").read_text())
-        )
+        TrainResult.from_json(json.loads((run.job_folder(j) / "result.json").read_text()))
         for j in jobs
     ]
 
-    def run(batch: list[tuple[SubtaskJob, Path, int]]) -> list[TrainResult]:
-        futures = [pool.submit(train_job, job, str(target)) for job, target, _ in batch]
+    def train_all(batch: Sequence[SubtaskJob]) -> list[TrainResult]:
+        futures = [pool.submit(train_job, run, job) for job in batch]
         return [TrainResult.from_json(f.result()) for f in futures]
 
-    done = finish(mission, plan, results, folder, run)
+    evaluation = run.evaluate(results)
+    results, evaluation, repairs = run.repair(results, evaluation, train_all)
+    done = run.finish(results, evaluation, repairs)
     for r in done.repairs:
         print(
             f"{row.folder} hand-over repair {r.round} of sub-tasks {r.subtasks}: mission "
@@ -223,10 +220,9 @@ def run_rows(rows: list[Row], out: Path, jobs: int) -> None:
     signal.signal(signal.SIGTERM, _interrupt)
     with ProcessPoolExecutor(max_workers=jobs, mp_context=context) as pool, _reaped(pool):
         pending: dict[Future[dict[str, Any]], tuple[Row, int]] = {}
-        for row, _, _, row_specs in planned:
+        for row, run, row_specs in planned:
             for spec in row_specs:
-                target = str(out / row.folder / f"subtask_{spec.subtask}")
-                pending[pool.submit(train_job, spec, target)] = (row, spec.subtask)
+                pending[pool.submit(train_job, run, spec)] = (row, spec.subtask)
         left = {row: sum(1 for r, _ in pending.values() if r == row) for row, *_ in planned}
         for future in as_completed(pending):
             row, k = pending[future]

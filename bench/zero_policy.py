@@ -24,9 +24,10 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
-from workers.evaluation import MissionEnv, evaluate_subtask, rollout_mission  # noqa: E402
+from envs.mission_env import MissionEnv  # noqa: E402
+from workers.evaluation import evaluate_subtask, rollout_mission  # noqa: E402
 from workers.mission import load_mission, parse_mission  # noqa: E402
-from workers.pipeline import EVALUATION_SEED, plan_for  # noqa: E402
+from workers.run import EVALUATION_SEED, stored_or_new_plan  # noqa: E402
 from workers.training import subtask_env  # noqa: E402
 
 
@@ -43,7 +44,7 @@ def main(argv: list[str] | None = None) -> None:
         document["training"]["env"].update(overrides)
         mission = parse_mission(document)
     training = mission.training
-    plan = plan_for(mission, args.out / mission.name)
+    plan = stored_or_new_plan(mission, args.out / mission.name)
     robot = mission.robot.model
     options = training.eval_env_options(robot)
     print(f"{mission.name} ({robot}), zero action; eval options: {options}\n")

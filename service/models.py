@@ -145,10 +145,12 @@ class Mission(Base):
     """Path of ``bundle.zip`` once assembled."""
     cancel_requested: Mapped[bool] = mapped_column(Boolean, default=False)
     """Set by a cancel request; training hooks read it and stop cooperatively."""
+    repairs: Mapped[list[Any] | None] = mapped_column(JSONDocument)
+    """``RepairRound.to_json()`` of every hand-over repair round judged so far."""
 
     jobs: Mapped[list[Job]] = relationship(
         back_populates="mission",
-        order_by="Job.index",
+        order_by="(Job.repair_round, Job.index)",
         lazy="selectin",
         cascade="all, delete-orphan",
         passive_deletes=True,
@@ -156,11 +158,15 @@ class Mission(Base):
 
 
 class Job(Base):
-    """Training of one sub-task of a mission (one Celery ``train_subtask`` task)."""
+    """Training of one sub-task of a mission in one round (one Celery ``train_subtask``
+    task): round 0 is the sub-task's own training, round ``r > 0`` its ``r``-th hand-over
+    repair (``workers.handover_repair``)."""
 
     __tablename__ = "jobs"
     __table_args__ = (
-        UniqueConstraint("mission_id", "index", name="uq_jobs_mission_id_index"),
+        UniqueConstraint(
+            "mission_id", "index", "repair_round", name="uq_jobs_mission_id_index_round"
+        ),
         Index("ix_jobs_status_heartbeat", "status", "heartbeat_at"),
     )
 
@@ -168,6 +174,11 @@ class Job(Base):
     mission_id: Mapped[str] = mapped_column(ForeignKey("missions.id", ondelete="CASCADE"))
     index: Mapped[int] = mapped_column(Integer)
     """Sub-task index in the plan (0-based)."""
+    repair_round: Mapped[int] = mapped_column(Integer, default=0)
+    """0: the sub-task's training; r > 0: its hand-over repair in round r."""
+    spec: Mapped[dict[str, Any] | None]
+    """``SubtaskJob.to_json()`` of a repair job (its starts and warm start); None in round 0,
+    whose job the mission run derives from the plan."""
     status: Mapped[JobStatus] = mapped_column(
         _enum(JobStatus, "job_status"), default=JobStatus.queued
     )

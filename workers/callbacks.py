@@ -1,7 +1,8 @@
 """Training callbacks of a sub-task job: evaluation that survives restarts, early stop on the
-success rate, cooperative cancel and throttled progress reports.
+success rate, checkpoints the driver is told of, cooperative cancel and throttled progress.
 
-Each class does one job, in the style of ``stable_baselines3.common.callbacks``.
+Each class does one job, in the style of ``stable_baselines3.common.callbacks``; what the
+driver hears goes through ``workers.hooks.TrainingHooks``.
 """
 
 from __future__ import annotations
@@ -14,16 +15,10 @@ from typing import Any
 
 import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
+from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
 
 from workers.evaluation import SubtaskEvaluation
-
-ProgressFn = Callable[[int, float | None, int], None]
-"""``on_progress(steps, success_rate, total)``: env steps done (restored ones included), the
-success rate of the latest periodic evaluation (None before the first) and the budget."""
-
-StopFn = Callable[[], bool]
-"""``should_stop()``: True asks the job to stop at the next check (a cancelled job)."""
+from workers.hooks import CurvePoint, TrainingHooks
 
 
 class ResumableEvalCallback(EvalCallback):
@@ -31,19 +26,28 @@ class ResumableEvalCallback(EvalCallback):
     keeps the policy of its best evaluation (by success rate) at ``best_path``.
 
     ``restore(upto)`` reloads the history the previous run wrote (entries after step ``upto``,
-    the checkpoint the run resumes from, are dropped: those steps are redone).
+    the checkpoint the run resumes from, are dropped: those steps are redone). Every new
+    evaluation is told to ``hooks.curve_point``.
     """
 
-    def __init__(self, *args: Any, best_path: Path | None = None, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        *args: Any,
+        best_path: Path | None = None,
+        start_rate: float | None = None,
+        hooks: TrainingHooks | None = None,
+        **kwargs: Any,
+    ) -> None:
         super().__init__(*args, **kwargs)
         self.best_path = best_path
         """Where the policy of the best evaluation so far is kept (None: not kept)."""
         self.best: tuple[int, float] | None = None
         """``(steps, success rate)`` of the kept policy: the first evaluation with the highest
         success rate."""
-        self.start_rate: float | None = None
+        self.start_rate = start_rate
         """Success rate of the policy before any update (``workers.residual``'s start check):
         the curve's step-0 point. None: not measured."""
+        self.hooks = hooks or TrainingHooks()
 
     def _on_step(self) -> bool:
         evaluations = len(self.evaluations_successes)
@@ -51,7 +55,11 @@ class ResumableEvalCallback(EvalCallback):
         rate = self.last_success_rate
         if len(self.evaluations_successes) > evaluations:
             assert rate is not None
-            self.offer(self.model, int(self.num_timesteps), rate)
+            steps = int(self.num_timesteps)
+            returns = np.asarray(self.evaluations_results[-1], dtype=float)
+            mean_return = float(np.mean(returns)) if returns.size else None
+            self.hooks.curve_point(CurvePoint(steps, int(returns.size), rate, mean_return))
+            self.offer(self.model, steps, rate)
         return go_on
 
     def offer(self, model: BaseAlgorithm, steps: int, rate: float) -> None:
@@ -144,7 +152,7 @@ class StopOnRequest(BaseCallback):
     """Stop training when ``should_stop()`` says so; asked at most every ``interval`` seconds
     (it may query a database) and on the first step."""
 
-    def __init__(self, should_stop: StopFn, interval: float = 0.5) -> None:
+    def __init__(self, should_stop: Callable[[], bool], interval: float = 0.5) -> None:
         super().__init__()
         self.should_stop = should_stop
         self.interval = interval
@@ -160,11 +168,12 @@ class StopOnRequest(BaseCallback):
 
 
 class ReportProgress(BaseCallback):
-    """Call ``on_progress`` at most every ``interval`` seconds and after every evaluation."""
+    """Call ``on_progress(steps, success_rate, total)`` at most every ``interval`` seconds and
+    after every evaluation."""
 
     def __init__(
         self,
-        on_progress: ProgressFn,
+        on_progress: Callable[[int, float | None, int], None],
         total: int,
         evaluation: ResumableEvalCallback,
         interval: float = 1.0,
@@ -220,6 +229,22 @@ def prune_checkpoints(folder: Path, keep: int = 2) -> None:
     for steps, path in found[:-keep]:
         path.unlink(missing_ok=True)
         (folder / f"model_replay_buffer_{steps}_steps.pkl").unlink(missing_ok=True)
+
+
+class ReportedCheckpoints(CheckpointCallback):
+    """``CheckpointCallback`` (model and replay buffer every ``save_freq`` steps) that tells
+    ``hooks.checkpoint`` of each checkpoint it saved."""
+
+    def __init__(self, save_freq: int, folder: Path, hooks: TrainingHooks) -> None:
+        super().__init__(save_freq, str(folder), name_prefix="model", save_replay_buffer=True)
+        self.hooks = hooks
+
+    def _on_step(self) -> bool:
+        go_on = super()._on_step()
+        if self.n_calls % self.save_freq == 0:
+            path = Path(self._checkpoint_path(extension="zip"))
+            self.hooks.checkpoint(int(self.num_timesteps), path)
+        return go_on
 
 
 class PruneCheckpoints(BaseCallback):

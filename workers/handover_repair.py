@@ -15,25 +15,25 @@ So, while the mission's success rate is below ``training.mission_target``, a rou
    ``target_success`` or ``handover_steps`` run out;
 3. the mission is evaluated again and the round is kept only if its success rate went up.
 
-At most ``training.handover_rounds`` rounds.
+At most ``training.handover_rounds`` rounds. The pieces are plain functions so that both drivers
+run the rounds their way: ``MissionRun.repair`` loops over them with a process pool (``ltlnav
+train``), the service runs each round's jobs as job rows of their own, in parallel, and judges
+the round in its next assembly step.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from envs.handover import Pose
-from planner.plan import MissionPlan
-from planner.serialize import plan_to_dict
+from planner.geometry.pose import Pose
 from workers.evaluation import MissionEvaluation
-from workers.mission import MissionSpec
+from workers.jobs import SubtaskJob
 from workers.training import TrainResult
-from workers.training_spec import StartPose, SubtaskJob
+from workers.training_spec import TrainingSpec
 
 REPAIR_CURRICULUM = 0.3
 """Share of repair episodes that start at a random r-ball of the guide (unless the mission's
@@ -45,12 +45,6 @@ MAX_STARTS = 300
 
 PROBE_SEED = 1000
 """Offset of the probe rollouts' seed from ``training.seed`` (per round)."""
-
-Evaluate = Callable[[list[TrainResult], int], MissionEvaluation]
-"""``evaluate(results, seed)``: whole-mission rollouts of these sub-task results."""
-
-RunJobs = Callable[[list[tuple[SubtaskJob, Path, int]]], list[TrainResult]]
-"""Run jobs ``(job, out_dir, steps before)`` (in parallel) and return their results."""
 
 
 @dataclass(frozen=True)
@@ -70,24 +64,35 @@ class RepairRound:
     def to_json(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
+    @classmethod
+    def from_json(cls, doc: dict[str, Any]) -> RepairRound:
+        return cls(**doc)
 
-def repair_jobs(
-    mission: MissionSpec,
-    plan: MissionPlan,
-    results: Sequence[TrainResult],
-    probe: MissionEvaluation,
-    round_: int,
-    out_dir: Path,
-) -> list[tuple[SubtaskJob, Path]]:
-    """One job per sub-task ``probe`` failed in and handed the robot to: train on from its
-    current policy (``results``) with the probe's hand-over poses as starts."""
-    training = mission.training
+
+def probe_seed(training: TrainingSpec, round_: int) -> int:
+    """Seed of the probe rollouts of round ``round_``: apart from the reported evaluation's."""
+    return training.seed + PROBE_SEED * round_
+
+
+def repair_training(training: TrainingSpec) -> TrainingSpec:
+    """The training section of a repair job: ``handover_steps`` of budget and the repair
+    curriculum (unless the mission sets its own)."""
     update: dict[str, Any] = {
         "n_timesteps": training.handover_steps,
         "env": {"curriculum": REPAIR_CURRICULUM, **training.env},
     }
-    repair_training = training.model_copy(update=update)
-    document, plan_doc = mission.model_dump(mode="json"), plan_to_dict(plan)
+    return training.model_copy(update=update)
+
+
+def repair_jobs(
+    training: TrainingSpec,
+    results: Sequence[TrainResult],
+    probe: MissionEvaluation,
+    round_: int,
+) -> list[SubtaskJob]:
+    """One job per sub-task ``probe`` failed in and handed the robot to: train on from its
+    current policy (``results``) with the probe's hand-over poses as starts."""
+    again = repair_training(training)
     failing = sorted(int(k) for k in probe.failures if k != "mission")
     jobs = []
     for k in failing:
@@ -95,26 +100,23 @@ def repair_jobs(
         if not poses:
             continue
         before = results[k]
-        job = SubtaskJob(
-            mission=document,
-            plan=plan_doc,
-            subtask=k,
-            training=repair_training,
-            seed=before.seed + PROBE_SEED * round_,
-            starts=start_poses(poses),
-            warm_start=str(Path(before.model_path).parent),
+        jobs.append(
+            SubtaskJob(
+                subtask=k,
+                training=again,
+                seed=before.seed + PROBE_SEED * round_,
+                round=round_,
+                starts=start_poses(poses),
+                warm_start=Path(before.model_path).parent,
+            )
         )
-        jobs.append((job, out_dir / f"subtask_{k}" / f"handover_{round_}"))
     return jobs
 
 
-def start_poses(poses: Sequence[Pose]) -> list[StartPose]:
+def start_poses(poses: Sequence[Pose]) -> tuple[Pose, ...]:
     """``poses`` as job starts, at most ``MAX_STARTS`` of them (evenly spaced)."""
     step = max(1, -(-len(poses) // MAX_STARTS))
-    return [
-        StartPose(position=[float(v) for v in p.position], heading=float(p.heading))
-        for p in poses[::step]
-    ]
+    return tuple(poses[::step])
 
 
 def merged(before: TrainResult, repair: TrainResult) -> TrainResult:
@@ -134,46 +136,26 @@ def merged(before: TrainResult, repair: TrainResult) -> TrainResult:
     )
 
 
-def repair_handovers(
-    mission: MissionSpec,
-    plan: MissionPlan,
-    results: list[TrainResult],
-    evaluation: MissionEvaluation,
-    out_dir: Path,
-    evaluate: Evaluate,
-    run: RunJobs,
-    evaluation_seed: int,
-) -> tuple[list[TrainResult], MissionEvaluation, list[RepairRound]]:
-    """Rounds of hand-over repair (see the module docstring) from ``results`` and their
-    mission ``evaluation`` (rolled out with ``evaluation_seed``); the results and evaluation to
-    keep, and what each round did."""
-    training = mission.training
-    rounds: list[RepairRound] = []
-    for round_ in range(1, training.handover_rounds + 1):
-        if evaluation.success_rate >= training.mission_target:
-            break
-        t0 = time.monotonic()
-        probe = evaluate(results, training.seed + PROBE_SEED * round_)
-        jobs = repair_jobs(mission, plan, results, probe, round_, out_dir)
-        if not jobs:
-            break
-        repaired = run([(job, folder, results[job.subtask].steps) for job, folder in jobs])
-        candidate = list(results)
-        for (job, _), result in zip(jobs, repaired, strict=True):
-            candidate[job.subtask] = merged(results[job.subtask], result)
-        after = evaluate(candidate, evaluation_seed)
-        kept = after.success_rate > evaluation.success_rate
-        rounds.append(
-            RepairRound(
-                round=round_,
-                subtasks=[job.subtask for job, _ in jobs],
-                success_before=evaluation.success_rate,
-                success_after=after.success_rate,
-                kept=kept,
-                seconds=time.monotonic() - t0,
-            )
-        )
-        if not kept:
-            break
-        results, evaluation = candidate, after
-    return results, evaluation, rounds
+def candidate_results(
+    results: Sequence[TrainResult], repaired: Sequence[TrainResult]
+) -> list[TrainResult]:
+    """``results`` with each repaired sub-task's result merged in."""
+    candidate = list(results)
+    for result in repaired:
+        candidate[result.subtask] = merged(results[result.subtask], result)
+    return candidate
+
+
+def judged_round(
+    round_: int, repaired: Sequence[TrainResult], before: float, after: float, seconds: float
+) -> RepairRound:
+    """The record of round ``round_`` that took the mission's success rate from ``before`` to
+    ``after``: kept only if it went up."""
+    return RepairRound(
+        round=round_,
+        subtasks=[r.subtask for r in repaired],
+        success_before=before,
+        success_after=after,
+        kept=after > before,
+        seconds=seconds,
+    )

@@ -90,12 +90,16 @@ class _WorldCache:
     """The built world and the (world JSON, start) it was built from.
 
     All caches compare equal so that two specs with the same fields are equal whether or not
-    their worlds were built.
+    their worlds were built. A pickled cache is empty: a spec sent to another process builds its
+    world there, once (a world holds closures that do not pickle).
     """
 
     def __init__(self) -> None:
         self.key: tuple[str, tuple[float, ...]] | None = None
         self.world: World | None = None
+
+    def __reduce__(self) -> tuple[type[_WorldCache], tuple[()]]:
+        return (_WorldCache, ())
 
     def __eq__(self, other: object) -> bool:
         return isinstance(other, _WorldCache)

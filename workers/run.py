@@ -1,12 +1,71 @@
 """One mission run: the mission validated once, its plan made or loaded once, and its jobs.
 
-Work in progress of issue 15: ``servable_problems`` is the rule both drivers (``ltlnav
-train`` and the service) apply before anything runs.
+``MissionRun.open(document, folder)`` validates the document (or takes a validated
+``MissionSpec``), refuses what cannot be served, and plans the mission into
+``folder/plan.json`` or loads the plan stored there for the same mission. The run then offers
+everything a driver needs: ``jobs()`` (one per sub-task), ``train(job, hooks)``,
+``evaluate(results)`` (whole-mission rollouts), the hand-over repair rounds
+(``repair_jobs``/``judge``, or ``repair`` to loop over them) and ``finish`` (the bundle). The
+local pipeline (``workers.pipeline``, ``ltlnav train``) and the service's Celery steps
+(``service.jobs``) are thin drivers of it.
+
+Folder layout: ``plan.json``, ``subtask_<k>/`` (a job's folder, ``workers.training``),
+``subtask_<k>/handover_<r>/`` (its repair in round ``r``), ``handover_repair.json`` and
+``bundle.zip``.
 """
 
 from __future__ import annotations
 
-from workers.mission import MissionSpec
+import json
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from envs.mission_env import MissionEnv
+from planner.decompose import lasso_stages
+from planner.errors import PlanningError
+from planner.plan import MissionPlan, plan_mission, verify_plan
+from planner.serialize import plan_from_dict, plan_to_dict
+from workers.evaluation import MissionEvaluation, rollout_mission, stage_policies
+from workers.handover_repair import (
+    RepairRound,
+    candidate_results,
+    judged_round,
+    probe_seed,
+    repair_jobs,
+)
+from workers.hooks import TrainingHooks
+from workers.jobs import SubtaskJob
+from workers.mission import MissionError, MissionSpec, parse_mission
+from workers.training import ALGORITHMS, TrainResult, train_subtask
+from workers.training_spec import TrainingSpec
+
+PLAN_FILE = "plan.json"
+"""The run's plan and the planning part of the mission it was made for."""
+
+REPAIR_RECORD = "handover_repair.json"
+"""What ``finish`` kept: the repair rounds, the sub-task results and the mission's evaluation
+(the bundle holds them too)."""
+
+EVALUATION_SEED = 7
+"""Offset of the reported mission rollouts' seed from ``training.seed``."""
+
+RunJobs = Callable[[Sequence[SubtaskJob]], list[TrainResult]]
+"""Train these jobs (in parallel where the driver can) and return their results in order."""
+
+
+@dataclass
+class RunResult:
+    """What a finished run produced."""
+
+    bundle: Path
+    plan: MissionPlan
+    results: list[TrainResult]
+    evaluation: MissionEvaluation
+    repairs: list[RepairRound] = field(default_factory=list)
+    """The rounds of hand-over repair run (``workers.handover_repair``)."""
 
 
 def servable_problems(mission: MissionSpec) -> list[tuple[str, str]]:
@@ -22,3 +81,174 @@ def servable_problems(mission: MissionSpec) -> list[tuple[str, str]]:
             )
         ]
     return []
+
+
+class MissionRun:
+    """A mission, its plan and its folder (see the module docstring)."""
+
+    def __init__(self, mission: MissionSpec, plan: MissionPlan, folder: Path) -> None:
+        self.mission, self.plan, self.folder = mission, plan, folder
+
+    @classmethod
+    def open(cls, mission: MissionSpec | Mapping[str, Any], folder: str | Path) -> MissionRun:
+        """Validate ``mission`` (unless already a spec), refuse what cannot be served
+        (``MissionError``), and plan it (``PlanningError`` when infeasible) or load its plan."""
+        spec = mission if isinstance(mission, MissionSpec) else parse_mission(dict(mission))
+        problems = servable_problems(spec)
+        if problems:
+            raise MissionError(problems)
+        out = Path(folder)
+        return cls(spec, stored_or_new_plan(spec, out), out)
+
+    servable = staticmethod(servable_problems)
+
+    @property
+    def training(self) -> TrainingSpec:
+        """The mission's training section."""
+        return self.mission.training
+
+    def stages(self, cycles: int | None = None) -> list[int]:
+        """Sub-task indices in lasso order: the prefix once, the suffix ``cycles`` times
+        (default ``training.cycles``)."""
+        return lasso_stages(self.plan.subtasks, self.training.cycles if cycles is None else cycles)
+
+    def jobs(self) -> list[SubtaskJob]:
+        """One training job per sub-task, seeded ``training.seed + k``."""
+        training = self.training
+        return [
+            SubtaskJob(subtask=k, training=training, seed=training.seed + k)
+            for k in range(len(self.plan.subtasks))
+        ]
+
+    def job_folder(self, job: SubtaskJob) -> Path:
+        return job.folder(self.folder)
+
+    def train(self, job: SubtaskJob, hooks: TrainingHooks | None = None) -> TrainResult:
+        """Train (or resume, or return the stored result of) ``job`` in its folder."""
+        return train_subtask(self.mission, self.plan, job, self.job_folder(job), hooks)
+
+    def evaluate(
+        self, results: Sequence[TrainResult], seed: int | None = None
+    ) -> MissionEvaluation:
+        """Whole-mission rollouts of the trained models of ``results`` (one per sub-task),
+        seeded ``seed`` (default: the reported evaluation's, ``training.seed +
+        EVALUATION_SEED``)."""
+        training, mission = self.training, self.mission
+        cls = ALGORITHMS[training.algorithm]
+        models = [cls.load(r.model_path, device="cpu") for r in results]
+        policies = [(lambda obs, m=m: m.predict(obs, deterministic=True)[0]) for m in models]
+        options = training.eval_env_options(mission.robot.model)
+        env = MissionEnv(mission, self.plan, options, training.cycles)
+        try:
+            act = stage_policies(env.sequence, policies)
+            at = training.seed + EVALUATION_SEED if seed is None else seed
+            return rollout_mission(act, env, training.mission_episodes, seed=at)
+        finally:
+            env.close()
+
+    def needs_repair(self, evaluation: MissionEvaluation, rounds_done: int) -> bool:
+        """Whether another round of hand-over repair is due: the mission is below
+        ``mission_target`` and fewer than ``handover_rounds`` rounds ran."""
+        training = self.training
+        below = evaluation.success_rate < training.mission_target
+        return below and rounds_done < training.handover_rounds
+
+    def repair_jobs(self, results: Sequence[TrainResult], round_: int) -> list[SubtaskJob]:
+        """The jobs of repair round ``round_``: probe rollouts (seeded apart from the reported
+        evaluation) find the sub-tasks that fail and the poses they are handed over in."""
+        probe = self.evaluate(results, probe_seed(self.training, round_))
+        return repair_jobs(self.training, results, probe, round_)
+
+    def judge(
+        self,
+        round_: int,
+        results: list[TrainResult],
+        evaluation: MissionEvaluation,
+        repaired: Sequence[TrainResult],
+        seconds: float,
+    ) -> tuple[list[TrainResult], MissionEvaluation, RepairRound]:
+        """Evaluate the mission with the repaired results merged in; the results and
+        evaluation to keep (the candidate's only if the mission improved) and the round's
+        record. ``seconds``: the round's time so far (probe and training)."""
+        t0 = time.monotonic()
+        candidate = candidate_results(results, repaired)
+        after = self.evaluate(candidate)
+        record = judged_round(
+            round_,
+            repaired,
+            evaluation.success_rate,
+            after.success_rate,
+            seconds + time.monotonic() - t0,
+        )
+        if record.kept:
+            return candidate, after, record
+        return results, evaluation, record
+
+    def repair(
+        self, results: list[TrainResult], evaluation: MissionEvaluation, run_jobs: RunJobs
+    ) -> tuple[list[TrainResult], MissionEvaluation, list[RepairRound]]:
+        """Rounds of hand-over repair while ``needs_repair`` (``workers.handover_repair``),
+        their jobs trained by ``run_jobs``; the results and evaluation to keep and the
+        rounds."""
+        rounds: list[RepairRound] = []
+        while self.needs_repair(evaluation, len(rounds)):
+            t0 = time.monotonic()
+            jobs = self.repair_jobs(results, len(rounds) + 1)
+            if not jobs:
+                break
+            repaired = run_jobs(jobs)
+            seconds = time.monotonic() - t0
+            results, evaluation, record = self.judge(
+                len(rounds) + 1, results, evaluation, repaired, seconds
+            )
+            rounds.append(record)
+            if not record.kept:
+                break
+        return results, evaluation, rounds
+
+    def finish(
+        self,
+        results: Sequence[TrainResult],
+        evaluation: MissionEvaluation,
+        repairs: Sequence[RepairRound] = (),
+    ) -> RunResult:
+        """Write what was kept (``handover_repair.json``) and ``bundle.zip``."""
+        from workers.bundle import write_bundle
+
+        record = {
+            "rounds": [r.to_json() for r in repairs],
+            "results": [r.to_json() for r in results],
+            "mission_evaluation": evaluation.to_json(),
+        }
+        (self.folder / REPAIR_RECORD).write_text(json.dumps(record, indent=1))
+        seeds = [r.seed for r in results]
+        bundle = write_bundle(
+            self.folder / "bundle.zip", self.mission, self.plan, results, evaluation, seeds
+        )
+        return RunResult(
+            bundle=bundle,
+            plan=self.plan,
+            results=list(results),
+            evaluation=evaluation,
+            repairs=list(repairs),
+        )
+
+
+def stored_or_new_plan(mission: MissionSpec, folder: Path) -> MissionPlan:
+    """The mission's plan: read from ``folder/plan.json`` when made for the same mission
+    (training options aside), else planned, verified and stored there."""
+    stored = folder / PLAN_FILE
+    planning = mission.model_dump(mode="json", exclude={"training"})
+    if stored.is_file():
+        saved = json.loads(stored.read_text())
+        if saved.get("mission") == planning:
+            return plan_from_dict(saved["plan"])
+    world = mission.build_world()
+    radius = mission.robot.radius
+    plan = plan_mission(world, mission.task, mission.robot.position(), radius, mission.planner)
+    problems = verify_plan(plan, world, radius)
+    if problems:
+        raise PlanningError("the plan failed its own check: " + "; ".join(problems))
+    folder.mkdir(parents=True, exist_ok=True)
+    stored.write_text(json.dumps({"mission": planning, "plan": plan_to_dict(plan)}))
+    return plan

@@ -1,4 +1,4 @@
-"""The mission's ``training:`` section and the job that trains one sub-task.
+"""The mission's ``training:`` section.
 
 ``TrainingSpec`` is what a user may set: the algorithm, the budget, evaluation, the reward mode
 and its constants, env options and stable-baselines3 hyperparameters under their RL-Zoo names
@@ -6,9 +6,7 @@ and its constants, env options and stable-baselines3 hyperparameters under their
 Reward and env defaults are not repeated here: an empty ``reward.constants`` or ``env`` takes
 ``envs.rewards``' and ``envs.options.EnvOptions``' own defaults.
 
-``SubtaskJob`` is everything one training job needs, as plain JSON (the service sends it through
-Celery): the mission document, the plan document (``plan_to_dict``) so that every job trains
-on the same guide, the sub-task index, the training spec and the seed.
+One training job of a sub-task is ``workers.jobs.SubtaskJob``.
 """
 
 from __future__ import annotations
@@ -362,39 +360,3 @@ def _valid_arch(arch: Any) -> bool:
     if isinstance(arch, dict):
         return bool(arch) and set(arch) <= {"pi", "qf", "vf"} and all(map(layers, arch.values()))
     return layers(arch)
-
-
-class StartPose(BaseModel):
-    """A start pose of a ``SubtaskJob`` as plain JSON."""
-
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-
-    position: list[float] = Field(min_length=2, max_length=3, description="Workspace point.")
-    heading: float = Field(0.0, description="Yaw (radians).")
-
-
-class SubtaskJob(BaseModel):
-    """One training job: train sub-task ``subtask`` of ``plan`` for ``mission``.
-
-    Plain JSON throughout (``model_dump(mode="json")``) so that it can travel through Celery;
-    ``subtask`` is ignored by the whole-lasso reward mode ``g-rrt``.
-    """
-
-    model_config = ConfigDict(extra="forbid")
-
-    mission: dict[str, Any] = Field(description="The mission document (as validated).")
-    plan: dict[str, Any] = Field(description="The plan document of plan_to_dict.")
-    subtask: int = Field(ge=0, description="Index into the plan's sub-tasks.")
-    training: TrainingSpec = Field(description="The training section to use.")
-    seed: int = Field(ge=0, description="Seed of this job (agent and env resets).")
-    starts: list[StartPose] | None = Field(
-        None,
-        description="Start poses of training and evaluation episodes in place of the real "
-        "starts (None: envs.handover's).",
-    )
-    warm_start: str | None = Field(
-        None,
-        description="Output folder of a finished job of this sub-task: begin from its policy "
-        "(model.zip) and newest replay buffer instead of a fresh agent (when this job's own "
-        "folder holds no checkpoint yet).",
-    )

@@ -33,7 +33,7 @@ from sqlalchemy.exc import DBAPIError
 from service import repository
 from service.db import make_engine
 from service.jobs.celery_app import QUEUE, LtlnavCelery, is_sqla
-from service.jobs.steps import Dispatch, database_for
+from service.jobs.common import Dispatch, database_for
 from service.models import MissionStatus
 from service.settings import Settings
 
@@ -45,8 +45,8 @@ class Reconciled:
     """What one pass sent again."""
 
     cancelled: list[str] = field(default_factory=list)
-    jobs: list[tuple[str, int]] = field(default_factory=list)
-    """``(mission id, sub-task index)`` of the jobs sent again."""
+    jobs: list[tuple[str, int, int]] = field(default_factory=list)
+    """``(mission id, sub-task index, repair round)`` of the jobs sent again."""
     plans: list[str] = field(default_factory=list)
     assemblies: list[str] = field(default_factory=list)
 
@@ -66,12 +66,12 @@ def reconcile_once(settings: Settings, dispatch: Dispatch, drained: bool = False
             queued = repository.claim_queued_missions(session, settings.requeue_after_seconds)
             out.plans = [m.id for m in queued]
             lost = repository.claim_queued_jobs(session, settings.requeue_after_seconds)
-            out.jobs = [(job.mission_id, job.index) for job in lost]
+            out.jobs = [(job.mission_id, job.index, job.repair_round) for job in lost]
     with db.session() as session:
         out.cancelled = repository.cancel_idle_missions(session)
     with db.session() as session:
         stale = repository.reclaim_stale_jobs(session, settings.stale_after_seconds)
-        out.jobs.extend((job.mission_id, job.index) for job in stale)
+        out.jobs.extend((job.mission_id, job.index, job.repair_round) for job in stale)
     with db.session() as session:
         stalled = repository.reclaim_stalled_missions(session, settings.stale_after_seconds)
         for mission in stalled:  # planning -> queued, evaluating -> training
@@ -80,8 +80,8 @@ def reconcile_once(settings: Settings, dispatch: Dispatch, drained: bool = False
     with db.session() as session:
         ready = repository.claim_assemblies(session, settings.requeue_after_seconds)
         out.assemblies.extend(m.id for m in ready)
-    for mission_id, index in out.jobs:
-        dispatch.train(mission_id, index)
+    for mission_id, index, repair_round in out.jobs:
+        dispatch.train(mission_id, index, repair_round)
     for mission_id in out.plans:
         dispatch.plan(mission_id)
     for mission_id in out.assemblies:

@@ -1,7 +1,8 @@
 """The Celery tasks of a mission: ``plan_mission`` -> chord(group(``train_subtask`` per
 sub-task), ``assemble_mission``), and the functions that send them.
 
-The tasks are thin: their work lives in ``service.jobs.steps`` (idempotent, database first). Tasks
+The tasks are thin: their work lives in ``service.jobs.planning``, ``.training`` and
+``.assembly`` (idempotent, database first). Tasks
 are sent by name so the API process needs neither torch nor the task code; ``train_subtask``
 messages carry a task id fixed per job so that a resent one stands in for a lost chord
 member in the result backend.
@@ -38,32 +39,33 @@ def app_for(settings: Settings | None = None) -> LtlnavCelery:
     return app
 
 
-def train_task_id(mission_id: str, index: int) -> str:
+def train_task_id(mission_id: str, index: int, repair_round: int = 0) -> str:
     """The fixed Celery task id of a job's training."""
-    return f"{mission_id}-train-{index}"
+    suffix = f"-repair-{repair_round}" if repair_round else ""
+    return f"{mission_id}-train-{index}{suffix}"
 
 
 class CeleryDispatch:
-    """``service.jobs.steps.Dispatch`` through a Celery app."""
+    """``service.jobs.common.Dispatch`` through a Celery app."""
 
     def __init__(self, app: Celery) -> None:
         self.app = app
 
-    def _train(self, mission_id: str, index: int) -> Signature:
+    def _train(self, mission_id: str, index: int, repair_round: int) -> Signature:
         return self.app.signature(
             TRAIN,
-            args=(mission_id, index),
+            args=(mission_id, index, repair_round),
             immutable=True,
-            task_id=train_task_id(mission_id, index),
+            task_id=train_task_id(mission_id, index, repair_round),
         )
 
-    def training(self, mission_id: str, indices: Sequence[int]) -> None:
-        header = group([self._train(mission_id, k) for k in indices], app=self.app)
+    def training(self, mission_id: str, indices: Sequence[int], repair_round: int = 0) -> None:
+        header = group([self._train(mission_id, k, repair_round) for k in indices], app=self.app)
         body = self.app.signature(ASSEMBLE, args=(mission_id,), immutable=True)
         chord(header, body, app=self.app).apply_async()
 
-    def train(self, mission_id: str, index: int) -> None:
-        self._train(mission_id, index).apply_async()
+    def train(self, mission_id: str, index: int, repair_round: int = 0) -> None:
+        self._train(mission_id, index, repair_round).apply_async()
 
     def assemble(self, mission_id: str) -> None:
         self.app.send_task(ASSEMBLE, args=(mission_id,))
@@ -86,7 +88,7 @@ def _settings(task: Task[Any, Any]) -> Settings:
 @shared_task(bind=True, name=PLAN)
 def plan_mission(self: Task[Any, Any], mission_id: str) -> str:
     """Plan the mission, store the plan and its jobs, send the training chord."""
-    from service.jobs.steps import plan_step  # torch and the planner: workers only, not the API
+    from service.jobs.planning import plan_step  # the planner and torch: workers only
 
     outcome = plan_step(_settings(self), mission_id, CeleryDispatch(self.app))
     log.info("plan_mission %s: %s", mission_id, outcome)
@@ -94,21 +96,23 @@ def plan_mission(self: Task[Any, Any], mission_id: str) -> str:
 
 
 @shared_task(bind=True, name=TRAIN)
-def train_subtask(self: Task[Any, Any], mission_id: str, index: int) -> str:
-    """Train one sub-task (resuming from its checkpoints) and record the result."""
-    from service.jobs.steps import train_step
+def train_subtask(self: Task[Any, Any], mission_id: str, index: int, repair_round: int = 0) -> str:
+    """Train one sub-task in one round (resuming from its checkpoints), record the result."""
+    from service.jobs.training import train_step
 
     in_chord = self.request.chord is not None
-    outcome = train_step(_settings(self), mission_id, index, CeleryDispatch(self.app), in_chord)
-    log.info("train_subtask %s/%d: %s", mission_id, index, outcome)
+    dispatch = CeleryDispatch(self.app)
+    settings = _settings(self)
+    outcome = train_step(settings, mission_id, index, dispatch, in_chord, repair_round)
+    log.info("train_subtask %s/%d/%d: %s", mission_id, index, repair_round, outcome)
     return outcome
 
 
 @shared_task(bind=True, name=ASSEMBLE)
 def assemble_mission(self: Task[Any, Any], mission_id: str) -> str:
     """Evaluate the whole mission and write its bundle once every job is done."""
-    from service.jobs.steps import assemble_step
+    from service.jobs.assembly import assemble_step
 
-    outcome = assemble_step(_settings(self), mission_id)
+    outcome = assemble_step(_settings(self), mission_id, CeleryDispatch(self.app))
     log.info("assemble_mission %s: %s", mission_id, outcome)
     return outcome

@@ -22,37 +22,54 @@ from service.repository.missions import NotFoundError, TransitionError, locked_m
 
 @dataclass(frozen=True)
 class NewJob:
-    """A sub-task's training job to create."""
+    """A sub-task's training job to create (``repair_round`` > 0: a hand-over repair, with
+    its ``SubtaskJob.to_json()`` as ``spec``)."""
 
     index: int
     budget: int
     out_dir: str
+    repair_round: int = 0
+    spec: dict[str, Any] | None = None
 
 
-def create_jobs(session: Session, mission_id: str, jobs: Sequence[NewJob]) -> list[Job]:
-    """The mission's jobs, created on the first call; a repeated call (redelivered planning
-    task) returns the existing ones untouched."""
+def create_jobs(
+    session: Session, mission_id: str, jobs: Sequence[NewJob], repair_round: int = 0
+) -> list[Job]:
+    """The mission's jobs of round ``repair_round``, created on the first call; a repeated
+    call (a redelivered task) returns the existing ones untouched."""
     locked_mission(session, mission_id)
-    existing = mission_jobs(session, mission_id)
+    existing = mission_jobs(session, mission_id, repair_round)
     if existing:
         return existing
     rows = [
-        Job(mission_id=mission_id, index=j.index, budget=j.budget, out_dir=j.out_dir) for j in jobs
+        Job(
+            mission_id=mission_id,
+            index=j.index,
+            budget=j.budget,
+            out_dir=j.out_dir,
+            repair_round=repair_round,
+            spec=j.spec,
+        )
+        for j in jobs
     ]
     session.add_all(rows)
     session.flush()
     return sorted(rows, key=lambda job: job.index)
 
 
-def mission_jobs(session: Session, mission_id: str) -> list[Job]:
-    """A mission's jobs by sub-task index."""
-    query = select(Job).where(Job.mission_id == mission_id).order_by(Job.index)
-    return list(session.scalars(query))
+def mission_jobs(session: Session, mission_id: str, repair_round: int | None = None) -> list[Job]:
+    """A mission's jobs by round and sub-task index (only round ``repair_round`` if given)."""
+    query = select(Job).where(Job.mission_id == mission_id)
+    if repair_round is not None:
+        query = query.where(Job.repair_round == repair_round)
+    return list(session.scalars(query.order_by(Job.repair_round, Job.index)))
 
 
-def get_job(session: Session, mission_id: str, index: int) -> Job | None:
-    """Sub-task ``index``'s job of a mission."""
-    query = select(Job).where(Job.mission_id == mission_id, Job.index == index)
+def get_job(session: Session, mission_id: str, index: int, repair_round: int = 0) -> Job | None:
+    """Sub-task ``index``'s job of a mission in round ``repair_round``."""
+    query = select(Job).where(
+        Job.mission_id == mission_id, Job.index == index, Job.repair_round == repair_round
+    )
     return session.scalars(query).one_or_none()
 
 
@@ -70,10 +87,13 @@ def start_job(session: Session, job_id: int, worker: str) -> Job:
     job.finished_at = None
     session.flush()
     session.refresh(job, ["attempts"])
-    record_event(
-        session, job.mission_id, "job", {"index": job.index, "status": "running", "worker": worker}
-    )
+    record_event(session, job.mission_id, "job", _job_payload(job, "running", worker=worker))
     return job
+
+
+def _job_payload(job: Job, status: str, **more: Any) -> dict[str, Any]:
+    """A ``job`` event's payload: the job's sub-task and round, its new status, ``more``."""
+    return {"index": job.index, "round": job.repair_round, "status": status, **more}
 
 
 def claim_job(session: Session, job_id: int, worker: str) -> Job | None:
@@ -97,9 +117,7 @@ def claim_job(session: Session, job_id: int, worker: str) -> Job | None:
         return None
     job = session.get(Job, job_id, populate_existing=True)
     assert job is not None
-    record_event(
-        session, job.mission_id, "job", {"index": job.index, "status": "running", "worker": worker}
-    )
+    record_event(session, job.mission_id, "job", _job_payload(job, "running", worker=worker))
     return job
 
 
@@ -140,12 +158,20 @@ def record_progress(
     if success_rate is not None:
         values["success_rate"] = success_rate
     row = session.execute(
-        update(Job).where(Job.id == job_id).values(**values).returning(Job.mission_id, Job.index)
+        update(Job)
+        .where(Job.id == job_id)
+        .values(**values)
+        .returning(Job.mission_id, Job.index, Job.repair_round)
     ).one_or_none()
     if row is None:
         raise NotFoundError(f"no job {job_id}")
-    mission_id, index = row
-    payload = {"index": index, "steps": steps_done, "success_rate": success_rate}
+    mission_id, index, repair_round = row
+    payload = {
+        "index": index,
+        "round": repair_round,
+        "steps": steps_done,
+        "success_rate": success_rate,
+    }
     record_event(session, mission_id, "progress", {**payload, "eta_seconds": eta_seconds})
 
 
@@ -171,8 +197,7 @@ def finish_job(
     if result is not None and "steps" in result:
         job.steps_done = int(result["steps"])
     session.flush()
-    payload = {"index": job.index, "status": status.value, "reason": reason}
-    record_event(session, job.mission_id, "job", payload)
+    record_event(session, job.mission_id, "job", _job_payload(job, status.value, reason=reason))
     return job
 
 

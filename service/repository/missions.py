@@ -24,9 +24,10 @@ TRANSITIONS: dict[MissionStatus, frozenset[MissionStatus]] = {
     MissionStatus.queued: frozenset({MissionStatus.planning}),
     MissionStatus.planning: frozenset({MissionStatus.training}),
     MissionStatus.training: frozenset({MissionStatus.evaluating}),
-    MissionStatus.evaluating: frozenset({MissionStatus.done}),
+    MissionStatus.evaluating: frozenset({MissionStatus.done, MissionStatus.training}),
 }
-"""Forward moves; any non-final state may also go to failed or cancelled."""
+"""Forward moves (evaluating -> training: a round of hand-over repair jobs); any non-final
+state may also go to failed or cancelled."""
 
 
 class TransitionError(LtlnavError):
@@ -204,6 +205,17 @@ def set_result(
     mission = locked_mission(session, mission_id)
     mission.evaluation = evaluation
     mission.bundle_path = bundle_path
+    session.flush()
+
+
+def set_repairs(
+    session: Session, mission_id: str, evaluation: dict[str, Any], repairs: list[dict[str, Any]]
+) -> None:
+    """Store the evaluation of the results kept so far and the repair rounds judged so far
+    (``RepairRound.to_json()``), between rounds of hand-over repair."""
+    mission = locked_mission(session, mission_id)
+    mission.evaluation = evaluation
+    mission.repairs = repairs
     session.flush()
 
 

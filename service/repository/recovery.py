@@ -51,7 +51,12 @@ def reclaim_stale_jobs(
         )
         if getattr(outcome, "rowcount", 0) == 1:
             session.refresh(job)
-            payload = {"index": job.index, "status": "queued", "reason": "stale heartbeat"}
+            payload = {
+                "index": job.index,
+                "round": job.repair_round,
+                "status": "queued",
+                "reason": "stale heartbeat",
+            }
             record_event(session, job.mission_id, "job", payload)
             claimed.append(job)
     return claimed

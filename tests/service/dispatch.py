@@ -1,4 +1,4 @@
-"""A ``service.jobs.steps.Dispatch`` that records what would have been sent, for the task tests."""
+"""A ``service.jobs.common.Dispatch`` that records what would have been sent, for the task tests."""
 
 from __future__ import annotations
 
@@ -12,11 +12,13 @@ class Recorder:
     def __init__(self) -> None:
         self.sent: list[tuple[Any, ...]] = []
 
-    def training(self, mission_id: str, indices: Sequence[int]) -> None:
-        self.sent.append(("training", mission_id, list(indices)))
+    def training(self, mission_id: str, indices: Sequence[int], repair_round: int = 0) -> None:
+        entry: tuple[Any, ...] = ("training", mission_id, list(indices))
+        self.sent.append((*entry, repair_round) if repair_round else entry)
 
-    def train(self, mission_id: str, index: int) -> None:
-        self.sent.append(("train", mission_id, index))
+    def train(self, mission_id: str, index: int, repair_round: int = 0) -> None:
+        entry: tuple[Any, ...] = ("train", mission_id, index)
+        self.sent.append((*entry, repair_round) if repair_round else entry)
 
     def assemble(self, mission_id: str) -> None:
         self.sent.append(("assemble", mission_id))

@@ -93,11 +93,14 @@ def test_settings_reject_stale_below_heartbeat(monkeypatch: pytest.MonkeyPatch) 
 
 # --- migrations ---------------------------------------------------------------------------
 
+HEAD = "0002"
+"""The newest migration."""
+
 
 def test_migrate_sqlite_matches_models(sqlite_url: str) -> None:
     assert current_revision(sqlite_url) is None
     upgrade(sqlite_url)
-    assert current_revision(sqlite_url) == "0001"
+    assert current_revision(sqlite_url) == HEAD
     assert _schema_diff(sqlite_url) == []
     engine = make_engine(sqlite_url)
     try:
@@ -109,7 +112,7 @@ def test_migrate_sqlite_matches_models(sqlite_url: str) -> None:
     assert {"missions", "jobs", "checkpoints", "evaluations", "events"} <= tables
     assert mode == "wal"
     upgrade(sqlite_url)  # a second run is a no-op
-    assert current_revision(sqlite_url) == "0001"
+    assert current_revision(sqlite_url) == HEAD
     downgrade(sqlite_url, "base")
     engine = make_engine(sqlite_url)
     try:
@@ -119,8 +122,30 @@ def test_migrate_sqlite_matches_models(sqlite_url: str) -> None:
 
 
 def test_migrate_postgres_matches_models(migrated_postgres: str) -> None:
-    assert current_revision(migrated_postgres) == "0001"
+    assert current_revision(migrated_postgres) == HEAD
     assert _schema_diff(migrated_postgres) == []
+
+
+def test_jobs_of_an_older_schema_become_round_0_jobs(sqlite_url: str) -> None:
+    upgrade(sqlite_url, "0001")
+    engine = make_engine(sqlite_url)
+    now = "2026-12-01 00:00:00"
+    with engine.begin() as connection:
+        connection.exec_driver_sql(
+            "INSERT INTO missions (id, name, document, status, created_at, updated_at, "
+            f"cancel_requested) VALUES ('m', 'm', '{{}}', 'training', '{now}', '{now}', 0)"
+        )
+        connection.exec_driver_sql(
+            'INSERT INTO jobs (mission_id, "index", status, budget, steps_done, attempts, '
+            "out_dir) VALUES ('m', 0, 'queued', 10, 0, 0, 'x')"
+        )
+    upgrade(sqlite_url)
+    with engine.connect() as connection:
+        row = connection.exec_driver_sql("SELECT repair_round, spec FROM jobs").one()
+    assert tuple(row) == (0, None)
+    downgrade(sqlite_url, "0001")
+    assert current_revision(sqlite_url) == "0001"
+    engine.dispose()
 
 
 def test_schema_diff_notices_a_missing_table(sqlite_url: str) -> None:
@@ -139,8 +164,8 @@ def test_cli_migrate(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
     result = CliRunner().invoke(app, ["migrate"])
     assert result.exit_code == 0, result.output
     url = f"sqlite:///{tmp_path}/data/ltlnav.db"
-    assert current_revision(url) == "0001"
-    assert "0001" in result.output
+    assert current_revision(url) == HEAD
+    assert HEAD in result.output
 
 
 # --- repository ---------------------------------------------------------------------------

@@ -1,5 +1,5 @@
-"""The task logic (``service.jobs.steps``) on a real SQLite database and real tiny trainings, with
-the follow-up tasks recorded instead of sent."""
+"""The task logic (``service.jobs.planning``, ``.training``, ``.assembly``) on a real SQLite
+database and real tiny trainings, with the follow-up tasks recorded instead of sent."""
 
 from __future__ import annotations
 
@@ -16,12 +16,16 @@ from sqlalchemy import update
 
 from service import repository
 from service.db import Database, upgrade
+from service.jobs.assembly import assemble_step
+from service.jobs.common import forget_open_runs
+from service.jobs.planning import plan_step
 from service.jobs.progress import JobMonitor
-from service.jobs.steps import assemble_step, plan_step, train_step
+from service.jobs.training import train_step
 from service.models import Job, JobStatus, MissionStatus, utcnow
 from service.settings import Settings
 from tests.service.dispatch import Recorder
 from tests.workers.missions import tiny_mission
+from workers.hooks import CurvePoint
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -66,9 +70,8 @@ def claimed_job(settings: Settings, worker: str) -> tuple[str, Database, Job]:
 
 def test_a_mission_runs_through_plan_train_assemble(settings: Settings) -> None:
     budget = 100  # half of TINY: the worker end-to-end tests train the whole of it
-    mission_id = submit(
-        settings, tiny_mission(n_timesteps=budget, eval_freq=50).model_dump(mode="json")
-    )
+    document = tiny_mission(n_timesteps=budget, eval_freq=50, handover_rounds=0)
+    mission_id = submit(settings, document.model_dump(mode="json"))
     sent = Recorder()
     assert plan_step(settings, mission_id, sent) == "planned"
     mission, jobs, _, _ = load(settings, mission_id)
@@ -86,7 +89,7 @@ def test_a_mission_runs_through_plan_train_assemble(settings: Settings) -> None:
 
     for job in jobs[:-1]:
         assert train_step(settings, mission_id, job.index, sent, in_chord=False) == "done"
-    assert assemble_step(settings, mission_id) == "waiting"
+    assert assemble_step(settings, mission_id, sent) == "waiting"
     last = jobs[-1].index
     assert train_step(settings, mission_id, last, sent, in_chord=False) == "done"
     assert sent.sent[-1] == ("assemble", mission_id)  # the last job outside a chord
@@ -100,8 +103,8 @@ def test_a_mission_runs_through_plan_train_assemble(settings: Settings) -> None:
         assert job.out_dir == str(folder / f"subtask_{job.index}")
         assert [p.steps for p in curves[job.index]] == [50, 100]
         assert saved[job.index] is not None and saved[job.index].steps == budget
-    assert assemble_step(settings, mission_id) == "done"
-    assert assemble_step(settings, mission_id) == "final"
+    assert assemble_step(settings, mission_id, sent) == "done"
+    assert assemble_step(settings, mission_id, sent) == "final"
     mission, *_ = load(settings, mission_id)
     assert mission.status == MissionStatus.done
     assert Path(mission.bundle_path) == folder / "bundle.zip" and (folder / "bundle.zip").is_file()
@@ -127,6 +130,7 @@ def test_an_unexpected_error_fails_the_mission_with_a_reason(settings: Settings)
     saved = json.loads(stored.read_text())
     saved["plan"]["subtasks"] = "garbage"
     stored.write_text(json.dumps(saved))
+    forget_open_runs()  # as in another worker process, which reads the plan anew
     assert train_step(settings, mission_id, 0, Recorder(), in_chord=True) == "failed"
     mission, jobs, _, _ = load(settings, mission_id)
     assert mission.status == MissionStatus.failed
@@ -189,42 +193,67 @@ def test_cancel_during_training_stops_the_job_and_keeps_its_checkpoint(
     assert Path(saved[0].path).is_file()
 
 
-def test_hand_over_repair_reports_its_progress_and_stops_on_cancel(settings: Settings) -> None:
-    # 100 steps cannot train the mission: the assembly repairs, with a budget to outlast the test
-    doc = tiny_mission(n_timesteps=100, eval_freq=50, handover_steps=100_000)
+def repairing_mission(settings: Settings, **training: Any) -> tuple[str, Recorder]:
+    """A mission whose 100 steps of training cannot make its target, trained, then assembled
+    into its first round of hand-over repair."""
+    doc = tiny_mission(n_timesteps=100, eval_freq=50, handover_steps=100, **training)
     mission_id = submit(settings, doc.model_dump(mode="json"))
-    plan_step(settings, mission_id, Recorder())
+    sent = Recorder()
+    plan_step(settings, mission_id, sent)
     for job in load(settings, mission_id)[1]:
-        assert train_step(settings, mission_id, job.index, Recorder(), in_chord=True) == "done"
-    outcome: list[str] = []
-    thread = threading.Thread(target=lambda: outcome.append(assemble_step(settings, mission_id)))
-    thread.start()
-    db = Database(settings.database_url)
-    news: list[str] = []
-    deadline = time.monotonic() + 90
-    while not news:
-        assert time.monotonic() < deadline and thread.is_alive()
-        time.sleep(0.05)
-        with db.session() as session:
-            events = repository.events_after(session, mission_id, 0, limit=1000)
-            news = [e.payload["reason"] for e in events if e.kind == "news"]
+        assert train_step(settings, mission_id, job.index, sent, in_chord=True) == "done"
+    assert assemble_step(settings, mission_id, sent) == "repairing"
+    return mission_id, sent
+
+
+def test_hand_over_repair_rounds_are_jobs_trained_in_parallel_then_judged(
+    settings: Settings,
+) -> None:
+    mission_id, sent = repairing_mission(settings, handover_rounds=1)
+    mission, jobs, _, _ = load(settings, mission_id)
+    repairs = [job for job in jobs if job.repair_round == 1]
+    indices = [job.index for job in repairs]
+    assert repairs and sent.sent[-1] == ("training", mission_id, indices, 1)
+    assert mission.status == MissionStatus.training and mission.repairs == []
+    assert mission.reason.startswith("hand-over repair round 1: mission success ")
+    assert mission.evaluation is not None  # the evaluation the round must beat
+    for job in repairs:
+        assert job.status == JobStatus.queued and job.budget == 100 and job.spec is not None
+        assert job.spec["round"] == 1 and job.spec["starts"]
+        assert job.out_dir == str(
+            settings.artifact_dir / mission_id / f"subtask_{job.index}" / "handover_1"
+        )
+    assert assemble_step(settings, mission_id, sent) == "waiting"
+    for index in indices:
+        assert train_step(settings, mission_id, index, sent, True, repair_round=1) == "done"
+    jobs = load(settings, mission_id)[1]
+    for job in jobs:
+        assert job.status == JobStatus.done and job.result["steps"] == 100
+    assert assemble_step(settings, mission_id, sent) == "done"
     mission = load(settings, mission_id)[0]
-    assert mission.status == MissionStatus.evaluating
-    assert news[0].startswith("hand-over repair of sub-task ") and " of 100000 steps" in news[0]
-    with db.session() as session:
+    assert mission.status == MissionStatus.done and Path(mission.bundle_path).is_file()
+    assert [(r["round"], r["subtasks"]) for r in mission.repairs] == [(1, indices)]
+    record = json.loads((settings.artifact_dir / mission_id / "handover_repair.json").read_text())
+    assert record["rounds"] == mission.repairs
+    kept = mission.repairs[0]["kept"]
+    assert {r["repairs"] for r in record["results"]} == ({0, 1} if kept else {0})
+
+
+def test_a_cancel_stops_a_repair_round(settings: Settings) -> None:
+    mission_id, _ = repairing_mission(settings)
+    index = next(job.index for job in load(settings, mission_id)[1] if job.repair_round == 1)
+    with Database(settings.database_url).session() as session:
         repository.request_cancel(session, mission_id)
-    thread.join(timeout=30)
-    assert outcome == ["cancelled"]
-    mission = load(settings, mission_id)[0]
+    assert train_step(settings, mission_id, index, Recorder(), True, repair_round=1) == "cancelled"
+    mission, jobs, _, _ = load(settings, mission_id)
     assert mission.status == MissionStatus.cancelled and mission.bundle_path is None
-    repairs = list((settings.artifact_dir / mission_id).glob("subtask_*/handover_1"))
-    assert repairs, "the stopped repair keeps its folder, to resume from"
+    assert {job.status for job in jobs if job.repair_round == 1} == {JobStatus.cancelled}
 
 
 def test_a_job_handed_to_another_worker_stops_writing(settings: Settings) -> None:
     mission_id, db, job = claimed_job(settings, "old-worker")
-    monitor = JobMonitor(db, mission_id, job.id, "old-worker", Path(job.out_dir), 0.01)
-    monitor.on_progress(0, None, 200)
+    monitor = JobMonitor(db, mission_id, job.id, "old-worker", 0.01)
+    monitor.progress(0, None, 200)
     time.sleep(0.02)
     monitor.check()
     assert not monitor.should_stop()
@@ -237,8 +266,10 @@ def test_a_job_handed_to_another_worker_stops_writing(settings: Settings) -> Non
     time.sleep(0.02)
     monitor.check()
     assert monitor.should_stop()
-    monitor.on_progress(50, 0.5, 200)
+    monitor.progress(50, 0.5, 200)
+    monitor.curve_point(CurvePoint(50, 1, 0.5))
     with db.session() as session:
+        assert repository.learning_curve(session, job.id) == []
         job = repository.get_job(session, mission_id, 0)
         assert (
             job is not None
@@ -248,7 +279,7 @@ def test_a_job_handed_to_another_worker_stops_writing(settings: Settings) -> Non
 
 
 class BrokerDown(Recorder):
-    def training(self, mission_id: str, indices: Sequence[int]) -> None:
+    def training(self, mission_id: str, indices: Sequence[int], repair_round: int = 0) -> None:
         raise ConnectionError("broker down")
 
 
@@ -265,7 +296,7 @@ def test_failure_reasons_name_the_problem() -> None:
     from celery.exceptions import SoftTimeLimitExceeded
 
     from planner.errors import PlanningError
-    from service.jobs.steps import describe
+    from service.jobs.common import describe
 
     assert describe(PlanningError("no path")) == "no path"
     assert describe(KeyError("x")) == "KeyError: 'x'"
@@ -291,21 +322,22 @@ def test_a_database_blip_delays_progress_writes_but_loses_none(
     from sqlalchemy.exc import OperationalError
 
     mission_id, db, job = claimed_job(settings, "me")
-    folder = Path(job.out_dir) / "checkpoints"
-    folder.mkdir(parents=True)
-    (folder / "model_100_steps.zip").write_bytes(b"model")
-    monitor = JobMonitor(db, mission_id, job.id, "me", Path(job.out_dir), 0.01)
-    real = repository.record_progress
+    path = Path(job.out_dir) / "checkpoints" / "model_100_steps.zip"
+    monitor = JobMonitor(db, mission_id, job.id, "me", 0.01)
+    real = repository.record_progress, repository.record_checkpoint
 
     def down(*_args: Any, **_kwargs: Any) -> None:
         raise OperationalError("UPDATE jobs", {}, Exception("connection lost"))
 
     monkeypatch.setattr(repository, "record_progress", down)
-    monitor.on_progress(100, None, 200)  # logged, not raised: training goes on
+    monkeypatch.setattr(repository, "record_checkpoint", down)
+    monitor.checkpoint(100, path)  # logged, not raised: training goes on
+    monitor.progress(100, None, 200)
     assert load(settings, mission_id)[3][0] is None
-    monkeypatch.setattr(repository, "record_progress", real)
+    monkeypatch.setattr(repository, "record_progress", real[0])
+    monkeypatch.setattr(repository, "record_checkpoint", real[1])
     time.sleep(0.02)
-    monitor.on_progress(150, None, 200)
+    monitor.progress(150, None, 200)
     _, jobs, _, saved = load(settings, mission_id)
     assert saved[0] is not None and saved[0].steps == 100 and jobs[0].steps_done == 150
 
@@ -323,24 +355,24 @@ def test_a_residual_jobs_start_check_is_the_first_point_of_its_curve(settings: S
 
 def test_a_restarted_job_keeps_one_start_point(settings: Settings) -> None:
     mission_id, db, job = claimed_job(settings, "me")
-    out = Path(job.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    start = {
-        "episodes": 4,
-        "success_rate": 0.25,
-        "collision_rate": 0.75,
-        "timeout_rate": 0.0,
-        "mean_steps_to_goal": 30.0,
-    }
-    (out / "start_check.json").write_text(json.dumps(start))
+    start = CurvePoint(0, 4, 0.25)
 
     def curve() -> list[tuple[int, int, float]]:
         points = load(settings, mission_id)[2][0]
         return [(p.steps, p.episodes, p.success_rate) for p in points]
 
-    JobMonitor(db, mission_id, job.id, "me", out, 0.01).on_progress(0, 0.25, 200)
+    def run(resumed: int, *points: CurvePoint) -> None:
+        monitor = JobMonitor(db, mission_id, job.id, "me", 0.01)
+        monitor.resumed(resumed)
+        for point in points:
+            monitor.curve_point(point)
+        monitor.progress(resumed, 0.25, 200)
+
+    run(0, start)
     assert curve() == [(0, 4, 0.25)]
-    JobMonitor(db, mission_id, job.id, "me", out, 0.01).on_progress(0, 0.25, 200)  # fresh again
+    run(0, start, CurvePoint(50, 1, 1.0))  # a fresh start again: its own points only
+    assert curve() == [(0, 4, 0.25), (50, 1, 1.0)]
+    run(0, start)
     assert curve() == [(0, 4, 0.25)]
-    JobMonitor(db, mission_id, job.id, "me", out, 0.01).on_progress(100, 0.25, 200)  # resumed
+    run(100)  # resumed: the points before the checkpoint stay
     assert curve() == [(0, 4, 0.25)]

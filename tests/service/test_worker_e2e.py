@@ -120,7 +120,7 @@ class Service:
         with self.db.session() as session:
             mission = repository.get_mission(session, mission_id)
             assert mission is not None
-            jobs = repository.mission_jobs(session, mission_id)
+            jobs = repository.mission_jobs(session, mission_id, repair_round=0)
             saved = {job.index: repository.latest_checkpoint(session, job.id) for job in jobs}
             curves = {job.index: repository.learning_curve(session, job.id) for job in jobs}
             return mission, jobs, saved, curves
@@ -196,6 +196,12 @@ def test_a_tiny_mission_reaches_done_with_a_bundle(service: Service) -> None:
         assert job.status == JobStatus.done and job.attempts == 1
         assert job.result["final"] is not None and saved[job.index] is not None
         assert [point.steps for point in curves[job.index]] == [100, 200]
+    with service.db.session() as session:  # hand-over repair rounds ran as jobs of their own
+        repairs = [j for j in repository.mission_jobs(session, mission_id) if j.repair_round]
+        assert {(j.repair_round, j.status) for j in repairs} <= {
+            (r["round"], JobStatus.done) for r in mission.repairs or []
+        }
+        assert {j.repair_round for j in repairs} == {r["round"] for r in mission.repairs or []}
 
 
 @pytest.mark.slow

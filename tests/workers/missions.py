@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
+from workers.hooks import CurvePoint, TrainingHooks
 from workers.mission import MissionSpec, parse_mission
 
 TINY: dict[str, Any] = {
@@ -42,3 +45,29 @@ def tiny_mission(**training: Any) -> MissionSpec:
     data = copy.deepcopy(TINY)
     data["training"].update(training)
     return parse_mission(data)
+
+
+class Recorder(TrainingHooks):
+    """Hooks that record what a job told them and stop when ``stop()`` says so."""
+
+    def __init__(self, stop: Callable[[], bool] | None = None) -> None:
+        self.stop = stop
+        self.progressed: list[tuple[int, float | None, int]] = []
+        self.points: list[CurvePoint] = []
+        self.saved: list[tuple[int, Path]] = []
+        self.resumes: list[int] = []
+
+    def resumed(self, steps: int) -> None:
+        self.resumes.append(steps)
+
+    def progress(self, steps: int, success_rate: float | None, total: int) -> None:
+        self.progressed.append((steps, success_rate, total))
+
+    def curve_point(self, point: CurvePoint) -> None:
+        self.points.append(point)
+
+    def checkpoint(self, steps: int, path: Path) -> None:
+        self.saved.append((steps, path))
+
+    def should_stop(self) -> bool:
+        return self.stop is not None and self.stop()

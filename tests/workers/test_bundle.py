@@ -17,12 +17,11 @@ from stable_baselines3 import SAC
 from envs.mission_env import MissionEnv
 from planner.errors import LtlnavError
 from planner.plan import MissionPlan, plan_mission
-from planner.serialize import plan_to_dict
 from workers.bundle import BundleError, ConcatenatedPolicy, read_bundle, write_bundle
 from workers.evaluation import rollout_mission, stage_policies
+from workers.jobs import SubtaskJob
 from workers.mission import MissionSpec
 from workers.training import TrainResult, train_subtask
-from workers.training_spec import SubtaskJob
 
 from .missions import tiny_mission
 
@@ -49,13 +48,9 @@ def trained(
     root = tmp_path_factory.mktemp("bundle")
     results = [
         train_subtask(
-            SubtaskJob(
-                mission=mission.model_dump(mode="json"),
-                plan=plan_to_dict(plan),
-                subtask=k,
-                training=mission.training,
-                seed=k,
-            ),
+            mission,
+            plan,
+            SubtaskJob(subtask=k, training=mission.training, seed=k),
             root / f"subtask_{k}",
         )
         for k in range(len(plan.subtasks))
@@ -259,14 +254,8 @@ def test_policies_of_other_algorithms_are_rebuilt_without_unpickling(
             "hyperparams": {"policy_kwargs": kwargs, **extra},
         }
     )
-    spec = SubtaskJob(
-        mission=mission.model_dump(mode="json"),
-        plan=plan_to_dict(plan),
-        subtask=1,
-        training=training,
-        seed=0,
-    )
-    result = train_subtask(spec, tmp_path / algorithm)
+    spec = SubtaskJob(subtask=1, training=training, seed=0)
+    result = train_subtask(mission, plan, spec, tmp_path / algorithm)
     blob = Path(result.model_path).read_bytes()
     entry = SubtaskEntry(
         index=1,

@@ -3,6 +3,8 @@ warm-started job trains for real from a finished job's policy and replay buffer.
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -11,22 +13,22 @@ from stable_baselines3 import SAC
 
 from envs.errors import EnvConfigError
 from envs.factory import make_env
-from envs.handover import Pose
+from planner.geometry.pose import Pose
 from planner.plan import MissionPlan
-from planner.serialize import plan_to_dict
 from workers.evaluation import MissionEvaluation
 from workers.handover_repair import (
     MAX_STARTS,
     REPAIR_CURRICULUM,
     RepairRound,
     merged,
-    repair_handovers,
     repair_jobs,
     start_poses,
 )
+from workers.jobs import SubtaskJob
 from workers.mission import MissionSpec
+from workers.run import EVALUATION_SEED, MissionRun
 from workers.training import TrainingError, TrainResult, subtask_env, train_subtask
-from workers.training_spec import StartPose, SubtaskJob, TrainingSpec
+from workers.training_spec import TrainingSpec
 
 from .missions import tiny_mission
 
@@ -65,33 +67,37 @@ def test_only_subtasks_the_rollouts_failed_in_train_on_from_their_hand_over_pose
 ) -> None:
     results = [result(k, tmp_path) for k in range(4)]
     probe = evaluation(0.5, {"2": {"collision": 3}, "mission": {"rejected": 1}})
-    jobs = repair_jobs(mission, plan, results, probe, 1, tmp_path)
-    assert [(job.subtask, folder) for job, folder in jobs] == [
-        (2, tmp_path / "subtask_2" / "handover_1")
+    jobs = repair_jobs(mission.training, results, probe, 1)
+    assert [(job.subtask, job.round, job.folder(tmp_path)) for job in jobs] == [
+        (2, 1, tmp_path / "subtask_2" / "handover_1")
     ]
-    job = jobs[0][0]
-    assert job.warm_start == str(tmp_path / "subtask_2")
-    assert job.starts == [
-        StartPose(position=[1.0 + 0.1 * i, 2.0], heading=0.5 * i) for i in range(3)
+    job = jobs[0]
+    assert job.warm_start == tmp_path / "subtask_2"
+    assert job.starts is not None
+    assert [(p.position.tolist(), p.heading) for p in job.starts] == [
+        ([1.0 + 0.1 * i, 2.0], 0.5 * i) for i in range(3)
     ]
     assert job.training.n_timesteps == mission.training.handover_steps
     assert job.training.env["curriculum"] == REPAIR_CURRICULUM
     assert job.seed != results[2].seed  # a repair explores anew
-    assert SubtaskJob.model_validate_json(job.model_dump_json()) == job
+    again = SubtaskJob.from_json(job.to_json())
+    assert again.starts is not None and (again.subtask, again.seed) == (job.subtask, job.seed)
+    assert [p.position.tolist() for p in again.starts] == [p.position.tolist() for p in job.starts]
+    assert again.to_json() == job.to_json()
 
 
 def test_a_mission_curriculum_is_kept_in_repairs(plan: MissionPlan, tmp_path: Path) -> None:
     own = tiny_mission(env={"curriculum": 0.9})
     results = [result(k, tmp_path) for k in range(4)]
-    jobs = repair_jobs(own, plan, results, evaluation(0.0, {"0": {"timeout": 1}}), 1, tmp_path)
-    assert jobs[0][0].training.env["curriculum"] == 0.9
+    jobs = repair_jobs(own.training, results, evaluation(0.0, {"0": {"timeout": 1}}), 1)
+    assert jobs[0].training.env["curriculum"] == 0.9
 
 
 def test_many_hand_over_poses_are_thinned_evenly() -> None:
     poses = [Pose(np.array([float(i), 0.0]), 0.0) for i in range(2 * MAX_STARTS + 1)]
     kept = start_poses(poses)
-    assert len(kept) <= MAX_STARTS and kept[0].position == [0.0, 0.0]
-    assert len({p.position[0] for p in kept}) == len(kept)
+    assert len(kept) <= MAX_STARTS and kept[0].position.tolist() == [0.0, 0.0]
+    assert len({float(p.position[0]) for p in kept}) == len(kept)
     assert len(start_poses(poses[:5])) == 5
 
 
@@ -115,31 +121,42 @@ def test_a_merged_result_counts_both_trainings(tmp_path: Path) -> None:
     assert after.seconds == 5.0 and merged(after, repair).repairs == 2
 
 
+class ScriptedRun(MissionRun):
+    """A run whose rollouts are scripted: the reported evaluation after each round is the next
+    of ``rates``; sub-task 1 always fails in the probe."""
+
+    def __init__(self, mission: MissionSpec, plan: MissionPlan, folder: Path, rates: list[float]):
+        super().__init__(mission, plan, folder)
+        self.after = iter(rates)
+        self.seeds: list[int] = []
+
+    def evaluate(
+        self, results: Sequence[TrainResult], seed: int | None = None
+    ) -> MissionEvaluation:
+        reported = self.mission.training.seed + EVALUATION_SEED
+        self.seeds.append(reported if seed is None else seed)
+        if seed is None:
+            return evaluation(next(self.after), {"1": {"collision": 1}})
+        return evaluation(0.0, {"1": {"collision": 1}})
+
+
 def repair_rounds(
     mission: MissionSpec, plan: MissionPlan, tmp_path: Path, rates: list[float]
 ) -> tuple[list[TrainResult], MissionEvaluation, list[RepairRound], list[int]]:
-    """Repair with scripted rollouts: the mission's success after each round is the next of
-    ``rates``; sub-task 1 always fails in the probe."""
-    after = iter(rates)
-    seeds: list[int] = []
+    """Repair with scripted rollouts (``ScriptedRun``) and jobs that finish at once."""
+    run = ScriptedRun(mission, plan, tmp_path, rates)
 
-    def evaluate(results: list[TrainResult], seed: int) -> MissionEvaluation:
-        seeds.append(seed)
-        if seed == 7:  # the reported evaluation
-            return evaluation(next(after), {"1": {"collision": 1}})
-        return evaluation(0.0, {"1": {"collision": 1}})
-
-    def run(batch: list[tuple[SubtaskJob, Path, int]]) -> list[TrainResult]:
+    def train_all(batch: Sequence[SubtaskJob]) -> list[TrainResult]:
         return [
-            TrainResult(job.subtask, job.seed, str(folder / "model.zip"), 50, 0, "target")
-            for job, folder, _ in batch
+            TrainResult(
+                job.subtask, job.seed, str(run.job_folder(job) / "model.zip"), 50, 0, "target"
+            )
+            for job in batch
         ]
 
     start = [result(k, tmp_path) for k in range(4)]
-    results, final, rounds = repair_handovers(
-        mission, plan, start, evaluation(0.5, {}), tmp_path, evaluate, run, 7
-    )
-    return results, final, rounds, seeds
+    results, final, rounds = run.repair(start, evaluation(0.5, {}), train_all)
+    return results, final, rounds, run.seeds
 
 
 def test_repair_rounds_are_kept_only_while_the_mission_improves(
@@ -168,16 +185,16 @@ def test_repair_stops_at_the_mission_target(
 def test_a_warm_started_job_trains_on_from_the_finished_policy_at_the_given_starts(
     mission: MissionSpec, plan: MissionPlan, tmp_path: Path
 ) -> None:
-    document, plan_doc = mission.model_dump(mode="json"), plan_to_dict(plan)
     first = tmp_path / "subtask_1"
-    base = SubtaskJob(mission=document, plan=plan_doc, subtask=1, training=mission.training, seed=3)
-    trained = train_subtask(base, first)
-    starts = [StartPose(position=[3.3, 0.7], heading=0.0)]
+    base = SubtaskJob(subtask=1, training=mission.training, seed=3)
+    trained = train_subtask(mission, plan, base, first)
+    starts = (Pose(np.array([3.3, 0.7]), 0.0),)
     training = TrainingSpec.model_validate({**mission.training.model_dump(), "n_timesteps": 100})
-    repair = base.model_copy(
-        update={"training": training, "starts": starts, "warm_start": str(first), "seed": 9}
+    repair = dataclasses.replace(
+        base, training=training, starts=starts, warm_start=first, seed=9, round=1
     )
-    again = train_subtask(repair, first / "handover_1")
+    assert repair.folder(tmp_path) == first / "handover_1"
+    again = train_subtask(mission, plan, repair, first / "handover_1")
     assert (again.steps, again.resumed_from) == (100, 0)
     buffer = first / "handover_1" / "checkpoints" / "model_replay_buffer_100_steps.pkl"
     model = SAC.load(again.model_path, device="cpu")
@@ -188,7 +205,9 @@ def test_a_warm_started_job_trains_on_from_the_finished_policy_at_the_given_star
     assert [p.position.tolist() for p in env.starts] == [[3.3, 0.7]]
     env.close()
     with pytest.raises(TrainingError, match=r"no model\.zip"):
-        train_subtask(repair.model_copy(update={"warm_start": str(tmp_path)}), tmp_path / "x")
+        train_subtask(
+            mission, plan, dataclasses.replace(repair, warm_start=tmp_path), tmp_path / "x"
+        )
 
 
 def test_explicit_starts_are_checked(mission: MissionSpec, plan: MissionPlan) -> None:

@@ -1,5 +1,5 @@
-"""Training one sub-task for real with tiny budgets: checkpoints, resume, cancel, progress, the
-training section's validation and the plan document that jobs carry."""
+"""Training one sub-task for real with tiny budgets: checkpoints, resume, cancel, what the hooks
+hear, the training section's validation, the plan document and the job value."""
 
 from __future__ import annotations
 
@@ -15,24 +15,20 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from planner.plan import MissionPlan
 from planner.serialize import plan_from_dict, plan_to_dict
+from workers.agents import keep_best_policy
 from workers.callbacks import ResumableEvalCallback, StopOnSuccessRate
 from workers.evaluation import SubtaskEvaluation
+from workers.jobs import SubtaskJob
 from workers.mission import MissionError, MissionSpec
-from workers.training import TrainingError, keep_best_policy, subtask_env, train_subtask
-from workers.training_spec import SubtaskJob, TrainingSpec
+from workers.training import TrainingError, subtask_env, train_subtask
+from workers.training_spec import TrainingSpec
 
-from .missions import tiny_mission
+from .missions import Recorder, tiny_mission
 
 
-def job(mission: MissionSpec, plan: MissionPlan, subtask: int = 0, **training: Any) -> SubtaskJob:
+def job(mission: MissionSpec, subtask: int = 0, **training: Any) -> SubtaskJob:
     spec = TrainingSpec.model_validate({**mission.training.model_dump(), **training})
-    return SubtaskJob(
-        mission=mission.model_dump(mode="json"),
-        plan=plan_to_dict(plan),
-        subtask=subtask,
-        training=spec,
-        seed=3,
-    )
+    return SubtaskJob(subtask=subtask, training=spec, seed=3)
 
 
 def test_plan_document_round_trips_exactly(plan: MissionPlan) -> None:
@@ -44,9 +40,10 @@ def test_plan_document_round_trips_exactly(plan: MissionPlan) -> None:
         assert np.array_equal(a.path, b.path) and a.goal == b.goal
 
 
-def test_job_is_json(mission: MissionSpec, plan: MissionPlan) -> None:
-    spec = job(mission, plan)
-    assert SubtaskJob.model_validate_json(spec.model_dump_json()) == spec
+def test_a_job_is_a_small_value_that_round_trips_through_json(mission: MissionSpec) -> None:
+    spec = job(mission)
+    assert SubtaskJob.from_json(json.loads(json.dumps(spec.to_json()))) == spec
+    assert set(spec.to_json()) == {"subtask", "training", "seed", "round", "starts", "warm_start"}
 
 
 def test_unknown_hyperparameter_names_the_key_and_the_valid_ones() -> None:
@@ -78,8 +75,9 @@ def test_train_checkpoint_then_resume_with_a_bigger_budget(
     scratch.mkdir()
     monkeypatch.setenv("TMPDIR", str(scratch))
     out = tmp_path / "job"
-    seen: list[tuple[int, float | None, int]] = []
-    first = train_subtask(job(mission, plan), out, on_progress=lambda *a: seen.append(a))
+    hooks = Recorder()
+    first = train_subtask(mission, plan, job(mission), out, hooks)
+    seen = hooks.progressed
     assert (first.steps, first.resumed_from, first.stopped) == (200, 0, "budget")
     assert [s for s, _ in first.curve] == [100, 200]
     assert first.final is not None and first.final["episodes"] == 2
@@ -92,16 +90,23 @@ def test_train_checkpoint_then_resume_with_a_bigger_budget(
     assert (out / "logs" / "run_0" / "progress.csv").is_file()
     assert list((out / "logs" / "run_0").glob("events.out.tfevents.*")), "no TensorBoard log"
     assert list(scratch.iterdir()) == []  # nothing written to $TMPDIR
+    assert hooks.resumes == [0]
+    assert [(p.steps, p.episodes) for p in hooks.points] == [(100, 1), (200, 1)]
+    assert [p.success_rate for p in hooks.points] == [r for _, r in first.curve]
+    assert [s for s, _ in hooks.saved] == [100, 200, 200]  # periodic, then the final one
+    assert hooks.saved[-1][1] == out / "checkpoints" / "model_200_steps.zip"
     model = SAC.load(first.model_path, device="cpu")
     assert model.num_timesteps == 200
 
-    second = train_subtask(job(mission, plan, n_timesteps=350), out)
+    again_hooks = Recorder()
+    second = train_subtask(mission, plan, job(mission, n_timesteps=350), out, again_hooks)
+    assert again_hooks.resumes == [200] and [p.steps for p in again_hooks.points] == [300]
     assert (second.resumed_from, second.steps) == (200, 350)
     with np.load(out / "evaluations.npz") as data:
         assert data["timesteps"].tolist() == [100, 200, 300]
     assert [s for s, _ in second.curve] == [100, 200, 300]
     assert (out / "logs" / "run_200" / "progress.csv").is_file()
-    again = train_subtask(job(mission, plan, n_timesteps=350), out)
+    again = train_subtask(mission, plan, job(mission, n_timesteps=350), out)
     assert again == second  # a finished job returns its stored result
 
 
@@ -115,20 +120,20 @@ def test_cancel_stops_after_a_checkpoint_and_resumes(
         asked.append(True)
         return len(asked) > 1
 
-    stopped = train_subtask(job(mission, plan, subtask=1), out, should_stop=should_stop)
+    stopped = train_subtask(mission, plan, job(mission, subtask=1), out, Recorder(should_stop))
     assert stopped.stopped == "cancelled" and stopped.steps == 1 and stopped.final is None
     assert Path(stopped.model_path).is_file() and not (out / "result.json").exists()
     # a newer checkpoint cut short (the job was killed while writing it) is skipped
     (out / "checkpoints" / "model_50_steps.zip").write_bytes(b"PK\x03\x04 cut short")
     with pytest.warns(UserWarning, match="model_50_steps.zip"):
-        resumed = train_subtask(job(mission, plan, subtask=1, n_timesteps=120), out)
+        resumed = train_subtask(mission, plan, job(mission, subtask=1, n_timesteps=120), out)
     assert (resumed.resumed_from, resumed.steps, resumed.stopped) == (1, 120, "budget")
 
 
 def test_same_seed_same_policy(mission: MissionSpec, plan: MissionPlan, tmp_path: Path) -> None:
-    spec = job(mission, plan, subtask=2, n_timesteps=80, eval_freq=80, final_eval_episodes=1)
-    a = SAC.load(train_subtask(spec, tmp_path / "a").model_path, device="cpu")
-    b = SAC.load(train_subtask(spec, tmp_path / "b").model_path, device="cpu")
+    spec = job(mission, subtask=2, n_timesteps=80, eval_freq=80, final_eval_episodes=1)
+    a = SAC.load(train_subtask(mission, plan, spec, tmp_path / "a").model_path, device="cpu")
+    b = SAC.load(train_subtask(mission, plan, spec, tmp_path / "b").model_path, device="cpu")
     env = subtask_env(mission, plan, spec.training, 2, evaluation=True)
     obs, _ = env.reset(seed=0)
     env.close()
@@ -143,7 +148,7 @@ def test_bad_subtask_index_is_a_training_error(
     mission: MissionSpec, plan: MissionPlan, tmp_path: Path
 ) -> None:
     with pytest.raises(TrainingError, match="does not exist"):
-        train_subtask(job(mission, plan, subtask=99), tmp_path / "job")
+        train_subtask(mission, plan, job(mission, subtask=99), tmp_path / "job")
     assert not (tmp_path / "job").exists()
 
 
@@ -186,15 +191,17 @@ def test_a_periodic_success_stops_only_when_the_confirmation_reaches_the_target(
 def test_a_stored_result_below_a_raised_target_trains_on(
     mission: MissionSpec, plan: MissionPlan, tmp_path: Path
 ) -> None:
-    first = train_subtask(job(mission, plan), tmp_path)
+    first = train_subtask(mission, plan, job(mission), tmp_path)
     stored = json.loads((tmp_path / "result.json").read_text())
     stored["stopped"] = "target"
     stored["final"]["success_rate"] = 0.5
     (tmp_path / "result.json").write_text(json.dumps(stored))
     bigger = first.steps + 100
-    kept = train_subtask(job(mission, plan, target_success=0.4, n_timesteps=bigger), tmp_path)
+    raised = job(mission, target_success=0.4, n_timesteps=bigger)
+    kept = train_subtask(mission, plan, raised, tmp_path)
     assert kept.stopped == "target" and kept.steps == first.steps
-    again = train_subtask(job(mission, plan, target_success=0.6, n_timesteps=bigger), tmp_path)
+    higher = job(mission, target_success=0.6, n_timesteps=bigger)
+    again = train_subtask(mission, plan, higher, tmp_path)
     assert again.resumed_from == first.steps and again.steps == bigger
 
 
@@ -216,14 +223,13 @@ def test_other_algorithms_train_with_rl_zoo_hyperparameters(
     hyperparams = {**hyperparams, "policy_kwargs": {"net_arch": [8], "activation_fn": "tanh"}}
     spec = job(
         mission,
-        plan,
         algorithm=algorithm,
         hyperparams=hyperparams,
         n_timesteps=64,
         eval_freq=64,
         final_eval_episodes=1,
     )
-    result = train_subtask(spec, tmp_path / algorithm)
+    result = train_subtask(mission, plan, spec, tmp_path / algorithm)
     assert result.steps >= 64 and result.final is not None
     assert Path(result.model_path).is_file()
 
@@ -232,19 +238,19 @@ def test_whole_lasso_mode_trains_one_agent(
     mission: MissionSpec, plan: MissionPlan, tmp_path: Path
 ) -> None:
     spec = job(
-        mission, plan, reward={"mode": "g-rrt"}, n_timesteps=64, eval_freq=64, final_eval_episodes=1
+        mission, reward={"mode": "g-rrt"}, n_timesteps=64, eval_freq=64, final_eval_episodes=1
     )
     env = subtask_env(mission, plan, spec.training, 0)
     assert len(env.legs) == len(plan.subtasks)  # one course through every sub-task
     env.close()
-    assert train_subtask(spec, tmp_path / "g").steps == 64
+    assert train_subtask(mission, plan, spec, tmp_path / "g").steps == 64
 
 
 def test_the_best_evaluation_keeps_its_policy(
     mission: MissionSpec, plan: MissionPlan, tmp_path: Path
 ) -> None:
     out = tmp_path / "job"
-    result = train_subtask(job(mission, plan, n_timesteps=200), out)
+    result = train_subtask(mission, plan, job(mission, n_timesteps=200), out)
     record = json.loads((out / "best_model.json").read_text())
     rates = [r for _, r in result.curve]
     assert record == {"steps": result.curve[rates.index(max(rates))][0], "success_rate": max(rates)}

@@ -1,0 +1,170 @@
+"""The assembly step of a mission, once every job of its latest round is done.
+
+It evaluates the whole mission (the concatenated policy, judged by the automaton). While the
+mission is below ``training.mission_target`` it runs rounds of hand-over repair
+(``workers.handover_repair``) as jobs of their own: the round's jobs become job rows
+(``repair_round`` r, the job's starts in ``spec``) trained in parallel like the first ones,
+with progress, curves and cancel, and the assembly that follows them judges the round (kept
+only if the mission improved). Then it writes ``bundle.zip`` and the mission is done. What
+was judged is stored on the mission (``repairs``, and the evaluation of the results kept), so
+any worker can take the next step.
+
+The step claims the mission with a compare-and-set (training -> evaluating).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from service import repository
+from service.db import Database
+from service.jobs.common import (
+    Dispatch,
+    cancel_mission,
+    database_for,
+    failing,
+    open_run,
+    send,
+)
+from service.jobs.progress import mission_heartbeat
+from service.models import Job, JobStatus, MissionStatus
+from service.settings import Settings
+from workers.evaluation import MissionEvaluation
+from workers.handover_repair import RepairRound, candidate_results
+from workers.run import MissionRun
+from workers.training import TrainResult
+
+
+def assemble_step(settings: Settings, mission_id: str, dispatch: Dispatch) -> str:
+    """Evaluate, judge the last repair round, start the next one or write the bundle.
+    Returns what happened (``done``, ``repairing``, ``waiting``, ``busy``, ``cancelled``,
+    ...)."""
+    db = database_for(settings)
+    with db.session() as session:
+        mission = repository.get_mission(session, mission_id)
+        if mission is None:
+            return "missing"
+        if mission.status in repository.FINAL_STATES:
+            return "final"
+        cancelled = mission.cancel_requested
+        jobs = repository.mission_jobs(session, mission_id)
+        if not cancelled and (not jobs or any(j.status != JobStatus.done for j in jobs)):
+            return "waiting"
+        if not cancelled and not (
+            mission.status == MissionStatus.training
+            and repository.set_status(session, mission_id, MissionStatus.evaluating)
+        ):
+            return "busy"
+        document = mission.document
+        rounds = _results_by_round(jobs)
+        judged = [RepairRound.from_json(doc) for doc in mission.repairs or []]
+        interim = mission.evaluation
+    if cancelled:
+        cancel_mission(db, mission_id)
+        return "cancelled"
+    with (
+        failing(db, mission_id, "assembly"),
+        mission_heartbeat(db, mission_id, settings.heartbeat_seconds),
+    ):
+        run = open_run(settings, mission_id, document)
+        results = _kept_results(rounds, judged)
+        pending = rounds[len(judged) + 1] if len(rounds) > len(judged) + 1 else None
+        if pending is not None:
+            if interim is None:
+                raise RuntimeError("a repair round finished but the evaluation before it is lost")
+            before = MissionEvaluation(**interim)
+            seconds = max(r.seconds for r in pending)
+            results, evaluation, record = run.judge(
+                len(judged) + 1, results, before, pending, seconds
+            )
+            judged.append(record)
+            go_on = record.kept
+        else:
+            evaluation = run.evaluate(results)
+            go_on = True
+        if go_on and run.needs_repair(evaluation, len(judged)):
+            outcome = _start_round(db, run, mission_id, results, evaluation, judged, dispatch)
+            if outcome is not None:
+                return outcome
+        out = run.finish(results, evaluation, judged)
+        with db.session() as session:
+            repository.set_result(session, mission_id, evaluation.to_json(), str(out.bundle))
+            repository.set_repairs(
+                session, mission_id, evaluation.to_json(), [r.to_json() for r in judged]
+            )
+            repository.record_evaluation(
+                session,
+                mission_id,
+                None,
+                steps=sum(r.steps for r in out.results),
+                episodes=evaluation.episodes,
+                success_rate=evaluation.success_rate,
+            )
+            repository.set_status(session, mission_id, MissionStatus.done)
+        return "done"
+    return "failed"
+
+
+def _start_round(
+    db: Database,
+    run: MissionRun,
+    mission_id: str,
+    results: list[TrainResult],
+    evaluation: MissionEvaluation,
+    judged: list[RepairRound],
+    dispatch: Dispatch,
+) -> str | None:
+    """Create the next repair round's job rows and send them (None: no job to run, so the
+    mission is assembled as it stands)."""
+    round_ = len(judged) + 1
+    jobs = run.repair_jobs(results, round_)
+    if not jobs:
+        return None
+    rows = [
+        repository.NewJob(
+            index=job.subtask,
+            budget=job.training.n_timesteps,
+            out_dir=str(run.job_folder(job)),
+            repair_round=round_,
+            spec=job.to_json(),
+        )
+        for job in jobs
+    ]
+    subtasks = ", ".join(str(job.subtask) for job in jobs)
+    news = (
+        f"hand-over repair round {round_}: mission success "
+        f"{100 * evaluation.success_rate:.0f} %, below its target; sub-task(s) {subtasks} "
+        "train on from the poses the mission's rollouts handed them over in"
+    )
+    with db.session() as session:
+        repository.create_jobs(session, mission_id, rows, repair_round=round_)
+        repository.set_repairs(
+            session, mission_id, evaluation.to_json(), [r.to_json() for r in judged]
+        )
+        try:
+            repository.set_status(session, mission_id, MissionStatus.training, news)
+        except repository.TransitionError:  # cancelled meanwhile
+            repository.cancel_queued_jobs(session, mission_id)
+            return "final"
+    indices = [job.subtask for job in jobs]
+    send(lambda: dispatch.training(mission_id, indices, round_), mission_id)
+    return "repairing"
+
+
+def _results_by_round(jobs: Sequence[Job]) -> list[list[TrainResult]]:
+    """The finished jobs' results, round by round (round 0 first), each by sub-task."""
+    rounds: dict[int, list[TrainResult]] = {}
+    for job in sorted(jobs, key=lambda j: (j.repair_round, j.index)):
+        rounds.setdefault(job.repair_round, []).append(TrainResult.from_json(job.result or {}))
+    return [rounds[r] for r in sorted(rounds)]
+
+
+def _kept_results(
+    rounds: Sequence[Sequence[TrainResult]], judged: Sequence[RepairRound]
+) -> list[TrainResult]:
+    """Round 0's results with every judged round that was kept merged in."""
+    results = list(rounds[0])
+    for record in judged:
+        if record.kept:
+            results = candidate_results(results, rounds[record.round])
+    return results

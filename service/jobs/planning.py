@@ -1,0 +1,131 @@
+"""The plan step of a mission: open its run (validate, plan, store ``plan.json``), store the
+plan summary, picture and job rows, then send the training of every sub-task.
+
+The step claims the mission with a compare-and-set (queued -> planning), so a redelivered or
+duplicated task does nothing; any error ends the mission ``failed`` with a reason.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from planner.errors import PlanningError
+from planner.guidance import Guide
+from planner.plan import MissionPlan
+from service import repository
+from service.jobs.common import (
+    Dispatch,
+    cancel_mission,
+    database_for,
+    fail_mission,
+    failing,
+    open_run,
+    send,
+)
+from service.jobs.progress import mission_heartbeat
+from service.models import MissionStatus
+from service.settings import Settings
+from workers.mission import MissionError
+from workers.run import MissionRun
+
+log = logging.getLogger(__name__)
+
+
+def plan_summary(plan: MissionPlan) -> dict[str, Any]:
+    """The stored plan summary (``Mission.plan``)."""
+    subtasks = []
+    for sub in plan.subtasks:
+        length = float(np.sum(np.linalg.norm(np.diff(sub.path, axis=0), axis=1)))
+        balls = Guide.from_path(sub.path, plan.r_ball).num_balls
+        subtasks.append(
+            {
+                "index": sub.index,
+                "phase": sub.phase,
+                "goal": sub.goal,
+                "length": length,
+                "balls": balls,
+            }
+        )
+    return {
+        "automaton_states": plan.nba.num_states,
+        "pruned_states": plan.pruned.num_states,
+        "prefix_length": float(plan.lasso.prefix_cost),
+        "suffix_length": float(plan.lasso.suffix_cost),
+        "cost": float(plan.lasso.cost),
+        "seconds": float(plan.seconds),
+        "subtasks": subtasks,
+    }
+
+
+def plan_step(settings: Settings, mission_id: str, dispatch: Dispatch) -> str:
+    """Plan a queued mission, store the summary, picture and jobs, then send the training.
+    Returns what happened (``planned``, ``infeasible``, ``busy``, ...)."""
+    db = database_for(settings)
+    with db.session() as session:
+        mission = repository.get_mission(session, mission_id)
+        if mission is None:
+            return "missing"
+        if mission.status in repository.FINAL_STATES:
+            return "final"
+        if mission.cancel_requested:
+            document = None
+        elif mission.status != MissionStatus.queued or not repository.set_status(
+            session, mission_id, MissionStatus.planning
+        ):
+            return "busy"
+        document = mission.document
+    if document is None:
+        cancel_mission(db, mission_id)
+        return "cancelled"
+    indices: list[int] = []
+    with (
+        failing(db, mission_id, "planning"),
+        mission_heartbeat(db, mission_id, settings.heartbeat_seconds),
+    ):
+        try:
+            run = open_run(settings, mission_id, document)
+        except (MissionError, PlanningError) as error:
+            fail_mission(db, mission_id, str(error))
+            return "infeasible" if isinstance(error, PlanningError) else "failed"
+        plan = run.plan
+        if not plan.subtasks:
+            fail_mission(db, mission_id, "the plan has no sub-task to train (no goal region)")
+            return "failed"
+        image = run.folder / "plan.png"
+        _plot(run, image)
+        jobs = [
+            repository.NewJob(
+                index=job.subtask,
+                budget=job.training.n_timesteps,
+                out_dir=str(run.job_folder(job)),
+            )
+            for job in run.jobs()
+        ]
+        with db.session() as session:
+            image_path = str(image) if image.is_file() else None
+            repository.set_plan(session, mission_id, plan_summary(plan), image_path)
+            rows = repository.create_jobs(session, mission_id, jobs)
+            indices = [row.index for row in rows]
+            try:
+                repository.set_status(session, mission_id, MissionStatus.training)
+            except repository.TransitionError:  # cancelled while planning
+                repository.cancel_queued_jobs(session, mission_id)
+                return "final"
+    if not indices:  # the guard recorded a failure
+        return "failed"
+    send(lambda: dispatch.training(mission_id, indices), mission_id)
+    return "planned"
+
+
+def _plot(run: MissionRun, out: Path) -> None:
+    """The plan picture (as ``ltlnav plan --plot``); a failure costs the picture only."""
+    from planner.plot import plot_plan
+
+    try:
+        plot_plan(run.mission.build_world(), run.plan, out, title=run.mission.name)
+    except (OSError, ValueError, RuntimeError):
+        log.exception("could not draw the plan of %s", out.parent.name)

@@ -1,0 +1,136 @@
+"""stable-baselines3 agents of a training job: built from the training section, restored from a
+checkpoint or a finished job, saved as checkpoints, and the best evaluated policy kept.
+
+Checkpoint layout (``CheckpointCallback``'s): ``model_<steps>_steps.zip`` and
+``model_replay_buffer_<steps>_steps.pkl`` in a job's ``checkpoints/`` folder.
+"""
+
+from __future__ import annotations
+
+import pickle
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from stable_baselines3 import DDPG, PPO, SAC, TD3
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+from planner.errors import LtlnavError
+from workers.callbacks import ResumableEvalCallback, checkpoints
+from workers.residual import zero_output_layer
+from workers.training_spec import TrainingSpec
+
+ALGORITHMS: dict[str, type[BaseAlgorithm]] = {"sac": SAC, "td3": TD3, "ddpg": DDPG, "ppo": PPO}
+"""stable-baselines3 classes by ``training.algorithm`` name."""
+
+ACTIVATION_MODULES: dict[str, type[torch.nn.Module]] = {
+    "relu": torch.nn.ReLU,
+    "tanh": torch.nn.Tanh,
+    "elu": torch.nn.ELU,
+    "leaky_relu": torch.nn.LeakyReLU,
+    "gelu": torch.nn.GELU,
+    "silu": torch.nn.SiLU,
+}
+
+
+class TrainingError(LtlnavError):
+    """A training job that cannot run as asked (bad sub-task index, unusable plan)."""
+
+
+def hyperparameters(training: TrainingSpec, action_dim: int) -> dict[str, Any]:
+    """The SB3 constructor keywords of ``training.hyperparams`` (RL-Zoo names mapped)."""
+    params = {k: v for k, v in training.hyperparams.items() if k not in ("noise_type", "noise_std")}
+    if training.algorithm != "ppo" and "buffer_size" not in params:
+        # SB3's default (1e6) is larger than any budget here and every checkpoint pickles the
+        # whole preallocated buffer: never keep more transitions than the job can collect.
+        params["buffer_size"] = training.n_timesteps
+    kwargs = training.policy_kwargs()
+    kwargs["activation_fn"] = ACTIVATION_MODULES[kwargs["activation_fn"]]
+    params["policy_kwargs"] = kwargs
+    if isinstance(params.get("train_freq"), list):
+        params["train_freq"] = (int(params["train_freq"][0]), str(params["train_freq"][1]))
+    noise = training.hyperparams.get("noise_type")
+    if noise is not None:
+        std = float(training.hyperparams.get("noise_std", 0.1))
+        cls = NormalActionNoise if noise == "normal" else OrnsteinUhlenbeckActionNoise
+        params["action_noise"] = cls(np.zeros(action_dim), std * np.ones(action_dim))
+    return params
+
+
+def load_agent(
+    training: TrainingSpec,
+    env: DummyVecEnv,
+    folder: Path,
+    seed: int,
+    warm: Path | None = None,
+    residual: bool = False,
+) -> tuple[BaseAlgorithm, int]:
+    """The agent and the step it resumes from: the newest readable checkpoint in ``folder``
+    with its replay buffer; else, with ``warm`` (a finished job's folder), its policy and
+    newest replay buffer at step 0; else a fresh agent (``residual``: its action output starts
+    at zero, ``workers.residual``)."""
+    cls = ALGORITHMS[training.algorithm]
+    found = checkpoints(folder)
+    if not found and warm is not None:
+        return _warm_agent(cls, env, warm, seed), 0
+    for path, buffer, steps in found:
+        try:
+            model = cls.load(path, env=env, device="cpu")
+            if buffer is not None and isinstance(model, OffPolicyAlgorithm):
+                model.load_replay_buffer(buffer)
+        except (OSError, EOFError, ValueError, RuntimeError, pickle.UnpicklingError) as err:
+            # a checkpoint cut short by the kill that restarted this job: use an older one
+            warnings.warn(f"skipping unreadable checkpoint {path.name}: {err}", stacklevel=2)
+            continue
+        model.num_timesteps = steps
+        return model, steps
+    shape = env.action_space.shape
+    assert shape is not None
+    params = hyperparameters(training, int(np.prod(shape)))
+    model = cls("MlpPolicy", env, seed=seed, device="cpu", verbose=0, **params)
+    if residual:
+        zero_output_layer(model)
+    return model, 0
+
+
+def _warm_agent(cls: type[BaseAlgorithm], env: DummyVecEnv, warm: Path, seed: int) -> BaseAlgorithm:
+    policy = warm / "model.zip"
+    if not policy.is_file():
+        raise TrainingError(f"warm start {warm} holds no model.zip: train that job first")
+    model = cls.load(policy, env=env, device="cpu")
+    model.set_random_seed(seed)
+    buffers = [b for _, b, _ in checkpoints(warm / "checkpoints") if b is not None]
+    if buffers and isinstance(model, OffPolicyAlgorithm):
+        model.load_replay_buffer(buffers[0])
+    model.num_timesteps = 0
+    return model
+
+
+def keep_best_policy(
+    model: BaseAlgorithm,
+    evaluation: ResumableEvalCallback,
+    training: TrainingSpec,
+    env: DummyVecEnv,
+) -> tuple[BaseAlgorithm, int | None]:
+    """The policy to keep after a budget ran out: the best evaluation's when it beat the last
+    one (a policy that was good once and then unlearned), else ``model``."""
+    last, best, path = evaluation.last_success_rate, evaluation.best, evaluation.best_path
+    if best is None or last is None or best[1] <= last or path is None or not path.is_file():
+        return model, None
+    return ALGORITHMS[training.algorithm].load(path, env=env, device="cpu"), best[0]
+
+
+def save_checkpoint(model: BaseAlgorithm, folder: Path, steps: int) -> Path:
+    """Save model (and replay buffer) as the checkpoint of ``steps``, as CheckpointCallback
+    does; the model's path."""
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"model_{steps}_steps.zip"
+    model.save(path)
+    if isinstance(model, OffPolicyAlgorithm):
+        model.save_replay_buffer(folder / f"model_replay_buffer_{steps}_steps.pkl")
+    return path
