@@ -81,9 +81,10 @@ class Submitted(BaseModel):
 
 
 class JobView(BaseModel):
-    """One sub-task's training job."""
+    """One sub-task's training job (``round`` 0), or its hand-over repair in round ``round``."""
 
     index: int
+    round: int = Field(0, description="0: the sub-task's training; r > 0: its r-th repair.")
     status: JobStatus
     steps_done: int
     budget: int
@@ -113,7 +114,17 @@ class MissionView(BaseModel):
         "prefix_length, suffix_length, cost, seconds, subtasks [{index, phase, goal, "
         "length, balls}]."
     )
-    jobs: list[JobView]
+    jobs: list[JobView] = Field(description="One training job per sub-task, by index.")
+    repairs: list[JobView] = Field(
+        default_factory=list,
+        description="Hand-over repair jobs, by round and sub-task: sub-tasks the mission's "
+        "rollouts failed in, trained on from the poses they were handed the robot in.",
+    )
+    repair_rounds: list[dict[str, Any]] = Field(
+        default_factory=list,
+        description="Each judged repair round: round, subtasks, success_before, "
+        "success_after, kept (only a round that raised the mission's success is kept).",
+    )
     evaluation: dict[str, Any] | None = Field(
         description="The whole-mission evaluation (rollouts of the concatenated policy)."
     )

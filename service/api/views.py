@@ -25,7 +25,7 @@ def mission_links(mission_id: str, indices: list[int]) -> MissionLinks:
 
 def _subtask_indices(mission: Mission) -> list[int]:
     if mission.jobs:
-        return [job.index for job in mission.jobs]
+        return [job.index for job in mission.jobs if job.repair_round == 0]
     subtasks = (mission.plan or {}).get("subtasks")
     if isinstance(subtasks, list):
         return [s["index"] for s in subtasks if isinstance(s, dict) and "index" in s]
@@ -37,6 +37,7 @@ def job_view(job: Job) -> JobView:
     final: Any = (job.result or {}).get("final")
     return JobView(
         index=job.index,
+        round=job.repair_round,
         status=job.status,
         steps_done=job.steps_done,
         budget=job.budget,
@@ -63,7 +64,9 @@ def mission_view(mission: Mission) -> MissionView:
         task=str(document.get("task", "")),
         robot=str(robot.get("model")) if isinstance(robot, dict) else None,
         plan=mission.plan,
-        jobs=[job_view(job) for job in mission.jobs],
+        jobs=[job_view(job) for job in mission.jobs if job.repair_round == 0],
+        repairs=[job_view(job) for job in mission.jobs if job.repair_round > 0],
+        repair_rounds=list(mission.repairs or []),
         evaluation=mission.evaluation,
         links=mission_links(mission.id, _subtask_indices(mission)),
     )

@@ -286,6 +286,21 @@ function jobsTable(jobs) {
     rows, [0, 2, 3, 4, 5, 6, 7, 8, 9, 10]));
 }
 
+function repairsTable(repairs, rounds) {
+  if (!repairs || repairs.length === 0) return h("div", { id: "repairs" });
+  const judged = new Map((rounds || []).map((r) => [r.round, r]));
+  const rows = repairs.map((j) => {
+    const r = judged.get(j.round);
+    const verdict = r ? `${pct(r.success_before)} → ${pct(r.success_after)}, `
+      + (r.kept ? "kept" : "not kept") : "–";
+    return [j.round, j.index, badge(j.status), `${j.steps_done}/${j.budget}`,
+      pct(j.success_rate), j.final ? pct(j.final.success_rate) : "–", verdict, j.reason || ""];
+  });
+  return h("div", { id: "repairs" }, h("h3", {}, "Hand-over repair"), table(
+    ["round", "sub-task", "status", "steps", "latest success", "success", "mission", "reason"],
+    rows, [0, 1, 3, 4, 5]));
+}
+
 function evaluationSection(evaluation) {
   if (!evaluation) return h("p", { class: "muted" }, "Not evaluated yet.");
   const summary = table(
@@ -509,7 +524,8 @@ function renderMission(mission, parts, image, bundle) {
   "Download bundle");
   parts.actions.replaceChildren(downloadButton, cancelButton);
   parts.plan.replaceChildren(planSection(mission, image));
-  parts.jobs.replaceChildren(progressBars(mission.jobs), jobsTable(mission.jobs));
+  parts.jobs.replaceChildren(progressBars(mission.jobs), jobsTable(mission.jobs),
+    repairsTable(mission.repairs, mission.repair_rounds));
   parts.evaluation.replaceChildren(evaluationSection(mission.evaluation));
 }
 
