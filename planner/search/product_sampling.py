@@ -110,8 +110,12 @@ class Sampler:
         rng: np.random.Generator,
         clearance: float,
         batch: int = 128,
+        bridge_sigma: float = 0.0,
     ) -> None:
         self.world = world
+        self.sigma = bridge_sigma
+        """Spread of the bridge-test pairs (0: uniform sampling only)."""
+        self.bridge_pairs = 4 * batch
         self.oracle = oracle
         self.rng = rng
         self.clearance = clearance
@@ -122,10 +126,33 @@ class Sampler:
         """Regions in which repeated sampling found no free point."""
 
     def free(self) -> np.ndarray:
-        """One uniform collision-free point."""
+        """One collision-free point: uniform, or now and then a bridge point (see _bridges)."""
         if not self._free:
-            self._free = list(self.world.sample_free(self.rng, self.batch, self.clearance))
+            pts = self.world.sample_free(self.rng, self.batch, self.clearance)
+            bridges = self._bridges(self.bridge_pairs)
+            if len(bridges):
+                pts = np.vstack([pts, bridges])
+                pts = pts[self.rng.permutation(len(pts))]
+            self._free = list(pts)
         return self._free.pop()
+
+    def _bridges(self, n: int) -> np.ndarray:
+        """Bridge-test samples (Hsu et al. 2003): midpoints of pairs of nearby points that
+        are both in collision while the midpoint is free. They land in doors and gaps between
+        obstacles, the narrow passages that uniform samples almost never hit; in open space
+        no pair passes, so the uniform distribution is left alone there."""
+        if n <= 0 or self.sigma <= 0.0:
+            return np.empty((0, self.world.dim))
+        d = self.world.dim
+        lo = self.world.bounds[:, 0] + self.clearance
+        hi = self.world.bounds[:, 1] - self.clearance
+        a = self.rng.uniform(lo, hi, size=(n, d))
+        b = a + self.rng.normal(scale=self.sigma, size=(n, d))
+        inside = np.all((b >= lo) & (b <= hi), axis=1)
+        mid = 0.5 * (a + b)
+        hit = self.world.in_collision(np.vstack([a, b, mid]), self.clearance)
+        ok = inside & hit[:n] & hit[n : 2 * n] & ~hit[2 * n :]
+        return np.asarray(mid[ok])
 
     def in_region(self, label: str) -> np.ndarray | None:
         """One uniform free point of region ``label``, None if it seems to have none."""

@@ -13,7 +13,16 @@ path are a stuttering of that word, which a formula without ``X`` cannot tell ap
 Extension is the RRT* step lifted to the product: steer from the nearest point (of the whole
 tree, or of one automaton layer for biased sampling) by at most ``eta``, check all segments to
 the geometric neighbours at once, create ``(x_new, q')`` for every automaton state reachable
-from a neighbour with its cheapest parent, then rewire neighbours through the new nodes.
+from a neighbour with its cheapest parent, then rewire the neighbours through the new nodes.
+Rewiring also *lifts*: a neighbour point that has no node yet in a state the new node leads to
+gets one, parented by the new node. Without it every automaton layer has to rediscover the free
+space by its own samples (a narrow door had to be found again by each state of a patrol); with
+it a new state spreads over the points the tree already holds, one neighbourhood per sample.
+
+Per iteration the work is a handful of numpy operations over (neighbours x automaton states):
+node ids live in a points x states table, costs in an array, and the successor relation in
+boolean matrices per distinct label (:class:`TransitionTable`). Nearest and radius queries go
+through :class:`~planner.search.point_index.PointIndex` (KD-tree plus a short scanned tail).
 """
 
 from __future__ import annotations
@@ -22,12 +31,14 @@ import math
 from collections.abc import Callable
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from planner.geometry.labels import LabelOracle
 from planner.geometry.world import World
+from planner.search.point_index import PointIndex
 
 Successors = Callable[[int, int], tuple[int, ...]]
+
+_EPS = 1e-12
 
 
 def edges_ok(
@@ -42,66 +53,39 @@ def edges_ok(
     return ok
 
 
-class PointIndex:
-    """Nearest and radius queries over a growing point set.
+class TransitionTable:
+    """The automaton's successor relation as boolean matrices, one per label met so far.
 
-    A cKDTree covers the points present at its last rebuild; later points are scanned by brute
-    force and the tree is rebuilt once that tail grows past an eighth of the total.
+    Labels (bitmasks) get small ids in order of appearance; ``reach[lid][q, q2]`` tells whether
+    ``q2`` is a successor of ``q`` under label ``lid``. Indexing ``reach`` by the label ids of k
+    points gives the (k, Q, Q) relation of a whole neighbourhood in one operation.
     """
 
-    def __init__(self, dim: int) -> None:
-        self.dim = dim
-        self._pts = np.empty((64, dim))
-        self._ids = np.empty(64, dtype=np.int64)
-        self.size = 0
-        self._kd: cKDTree | None = None
-        self._frozen = 0
+    def __init__(self, successors: Successors, num_states: int) -> None:
+        self.successors = successors
+        self.num_states = num_states
+        self.reach = np.zeros((8, num_states, num_states), dtype=bool)
+        self._ids: dict[int, int] = {}
 
-    def add(self, pid: int, x: np.ndarray) -> None:
-        """Insert point id ``pid`` at ``x``."""
-        if self.size == len(self._ids):
-            self._pts = np.concatenate([self._pts, np.empty_like(self._pts)])
-            self._ids = np.concatenate([self._ids, np.empty_like(self._ids)])
-        self._pts[self.size] = x
-        self._ids[self.size] = pid
-        self.size += 1
-        if self.size - self._frozen > max(256, self.size // 8):
-            self._kd = cKDTree(self._pts[: self.size])
-            self._frozen = self.size
-
-    def nearest(self, x: np.ndarray) -> tuple[int, float]:
-        """Id of the point nearest to ``x`` and its distance."""
-        best_i, best_d = -1, math.inf
-        if self._kd is not None:
-            d, i = self._kd.query(x)
-            best_i, best_d = int(i), float(d)
-        if self.size > self._frozen:
-            diff = self._pts[self._frozen : self.size] - x
-            d2 = np.einsum("ij,ij->i", diff, diff)
-            j = int(np.argmin(d2))
-            if d2[j] < best_d * best_d:
-                best_i, best_d = self._frozen + j, math.sqrt(float(d2[j]))
-        return int(self._ids[best_i]), best_d
-
-    def within(self, x: np.ndarray, r: float) -> np.ndarray:
-        """Ids of the points at distance <= r from ``x``."""
-        parts = []
-        if self._kd is not None:
-            parts.append(np.asarray(self._kd.query_ball_point(x, r), dtype=np.int64))
-        if self.size > self._frozen:
-            diff = self._pts[self._frozen : self.size] - x
-            d2 = np.einsum("ij,ij->i", diff, diff)
-            parts.append(self._frozen + np.flatnonzero(d2 <= r * r))
-        if not parts:
-            return np.empty(0, dtype=np.int64)
-        return np.asarray(self._ids[np.concatenate(parts)])
+    def label_id(self, mask: int) -> int:
+        """The id of label ``mask``, its matrix computed on first sight."""
+        lid = self._ids.get(mask)
+        if lid is None:
+            lid = len(self._ids)
+            if lid == len(self.reach):
+                self.reach = np.concatenate([self.reach, np.zeros_like(self.reach)])
+            for q in range(self.num_states):
+                self.reach[lid, q, list(self.successors(q, mask))] = True
+            self._ids[mask] = lid
+        return lid
 
 
 class ProductTree:
     """RRT* tree in the product space; see the module docstring for the transition relation.
 
-    Node attributes live in Python lists (the inner loops are scalar); point coordinates in a
-    numpy array grown by doubling. ``layer(q)`` indexes the points carrying a node in state q.
+    ``node_at[pid, q]`` is the node of state q at point pid (-1: none); ``cost`` is an array
+    indexed by node. ``layer(q)`` indexes the points carrying a node in state q. ``lift``
+    switches the lifting of new states onto neighbour points (on by default).
     """
 
     def __init__(
@@ -109,31 +93,39 @@ class ProductTree:
         world: World,
         oracle: LabelOracle,
         successors: Successors,
+        num_states: int,
         clearance: float,
         eta: float,
         gamma: float,
+        lift: bool = True,
     ) -> None:
         self.world = world
         self.oracle = oracle
         self.successors = successors
+        self.table = TransitionTable(successors, num_states)
+        self.num_states = num_states
         self.clearance = clearance
         self.eta = eta
         self.gamma = gamma
+        self.lift = lift
         self.dim = world.dim
         self.pos = np.empty((256, self.dim))
+        self.label_ids = np.empty(256, dtype=np.int64)
+        self.node_at = np.full((256, num_states), -1, dtype=np.int64)
         self.npts = 0
         self.mask: list[int] = []
-        self.pt_nodes: list[list[int]] = []
         self.node_pt: list[int] = []
         self.node_q: list[int] = []
         self.parent: list[int] = []
-        self.cost: list[float] = []
+        self.cost = np.full(1024, math.inf)
         self.children: list[list[int]] = []
-        self.lookup: dict[tuple[int, int], int] = {}
         self.index = PointIndex(self.dim)
+        """All points, for neighbour queries (seeded points included)."""
+        self.reached = PointIndex(self.dim)
+        """The points that carry a node: the tree grows from these."""
         self.layers: dict[int, PointIndex] = {}
         self.entered = 0
-        """Union of the label masks of all points: the regions the tree has been in."""
+        """Union of the label masks of the reached points: the regions the tree has been in."""
 
     @property
     def num_nodes(self) -> int:
@@ -143,37 +135,59 @@ class ProductTree:
         """Store a new geometric point and return its id."""
         if self.npts == len(self.pos):
             self.pos = np.concatenate([self.pos, np.empty_like(self.pos)])
+            self.label_ids = np.concatenate([self.label_ids, np.empty_like(self.label_ids)])
+            self.node_at = np.concatenate([self.node_at, np.full_like(self.node_at, -1)])
         pid = self.npts
         self.pos[pid] = x
+        self.label_ids[pid] = self.table.label_id(mask)
         self.npts += 1
         self.mask.append(mask)
-        self.pt_nodes.append([])
         self.index.add(pid, x)
-        self.entered |= mask
         return pid
+
+    def seed_points(self, points: np.ndarray, masks: list[int]) -> None:
+        """Add points without nodes (those another tree explored): neighbours that new nodes
+        lift their states onto, so the tree does not have to find the same passages again."""
+        for x, mask in zip(points, masks, strict=True):
+            self.add_point(x, mask)
 
     def add_node(self, pid: int, q: int, parent: int, cost: float) -> int:
         """Create product node ``(point pid, q)`` under ``parent`` (-1 for a root)."""
         nid = len(self.node_q)
+        if nid == len(self.cost):
+            self.cost = np.concatenate([self.cost, np.full_like(self.cost, math.inf)])
         self.node_pt.append(pid)
         self.node_q.append(q)
         self.parent.append(parent)
-        self.cost.append(cost)
+        self.cost[nid] = cost
         self.children.append([])
         if parent >= 0:
             self.children[parent].append(nid)
-        self.pt_nodes[pid].append(nid)
-        self.lookup[(pid, q)] = nid
+        if not (self.node_at[pid] >= 0).any():
+            self.reached.add(pid, self.pos[pid])
+            self.entered |= self.mask[pid]
+        self.node_at[pid, q] = nid
         layer = self.layers.get(q)
         if layer is None:
             layer = self.layers[q] = PointIndex(self.dim)
         layer.add(pid, self.pos[pid])
         return nid
 
+    def node(self, pid: int, q: int) -> int:
+        """The node of state ``q`` at point ``pid``, -1 if there is none."""
+        return int(self.node_at[pid, q])
+
     def near_radius(self) -> float:
         """RRT* neighbourhood radius ``min(gamma (log n / n)^(1/d), eta)``."""
         n = max(self.npts, 2)
         return min(self.gamma * (math.log(n) / n) ** (1.0 / self.dim), self.eta)
+
+    def near_count(self) -> int:
+        """Most neighbours considered, ``e (1 + 1/d) log n`` (k-nearest RRT*): biased sampling
+        piles points into goal regions and around a suffix root, where the radius alone
+        would hand every step hundreds of candidate edges."""
+        n = max(self.npts, 2)
+        return max(8, math.ceil(math.e * (1.0 + 1.0 / self.dim) * math.log(n)))
 
     def edges_ok(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """(n,) validity of geometric edges a[i]-b[i]: collision free, <= 1 label change."""
@@ -181,63 +195,73 @@ class ProductTree:
 
     def extend(self, target: np.ndarray, layer: int | None = None) -> list[int]:
         """One RRT* step toward ``target`` from the nearest point of the tree (or of automaton
-        layer ``layer``); returns the ids of the product nodes created (possibly none)."""
-        index = self.index if layer is None else self.layers[layer]
+        layer ``layer``); returns the ids of the product nodes created (possibly none), those at
+        the new point first, then those lifted onto its neighbours."""
+        index = self.reached if layer is None else self.layers[layer]
         pid_near, dist = index.nearest(target)
-        if dist <= 1e-12:
+        if dist <= _EPS:
             return []
         x_near = self.pos[pid_near]
         x_new = target if dist <= self.eta else x_near + (target - x_near) * (self.eta / dist)
         if self.world.in_collision(x_new[None, :], self.clearance)[0]:
             return []
-        near = self.index.within(x_new, self.near_radius())
+        near = self.index.within(x_new, self.near_radius(), self.near_count())
         if not np.any(near == pid_near):
             near = np.append(near, pid_near)
         a = self.pos[near]
         diff = a - x_new
         d = np.sqrt(np.einsum("ij,ij->i", diff, diff))
-        keep = d > 1e-12
-        if not keep.all():
+        if not (d > _EPS).all():
             return []
         ok = self.edges_ok(a, np.broadcast_to(x_new, a.shape))
         near, d = near[ok], d[ok]
         if near.size == 0:
             return []
         mask_new = self.oracle.masks(x_new[None, :])[0]
-        near_l, d_l = near.tolist(), d.tolist()
-        cost, node_q, succ, pt_nodes = self.cost, self.node_q, self.successors, self.pt_nodes
-        # Cheapest way to reach x_new from each automaton state among the neighbours.
-        via: dict[int, tuple[float, int]] = {}
-        for pid, dd in zip(near_l, d_l, strict=True):
-            for nid in pt_nodes[pid]:
-                c = cost[nid] + dd
-                q = node_q[nid]
-                old = via.get(q)
-                if old is None or c < old[0]:
-                    via[q] = (c, nid)
-        best: dict[int, tuple[float, int]] = {}
-        for q, (c, nid) in via.items():
-            for q2 in succ(q, mask_new):
-                old = best.get(q2)
-                if old is None or c < old[0]:
-                    best[q2] = (c, nid)
-        if not best:
+        lid_new = self.table.label_id(mask_new)  # may grow table.reach: look it up first
+        reach_new = self.table.reach[lid_new]
+        states = np.arange(self.num_states)
+        nodes = self.node_at[near]
+        through = np.where(nodes >= 0, self.cost[nodes] + d[:, None], math.inf)
+        # Cheapest neighbour node in each automaton state, then for each successor state the
+        # cheapest of those that steps to it under L(x_new).
+        row = through.argmin(axis=0)
+        via = through[row, states]
+        options = np.where(reach_new, via[:, None], math.inf)
+        src = options.argmin(axis=0)
+        best = options[src, states]
+        reached = np.flatnonzero(np.isfinite(best))
+        if reached.size == 0:
             return []
         pid_new = self.add_point(x_new, mask_new)
-        new = [self.add_node(pid_new, q2, best[q2][1], best[q2][0]) for q2 in sorted(best)]
-        masks = self.mask
+        new = [
+            self.add_node(pid_new, int(q2), int(nodes[row[src[q2]], src[q2]]), float(best[q2]))
+            for q2 in reached.tolist()
+        ]
+        return new + self._rewire(new, near, d)
+
+    def _rewire(self, new: list[int], near: np.ndarray, d: np.ndarray) -> list[int]:
+        """Reparent neighbour nodes through the new nodes where cheaper, and lift the new
+        nodes' successor states onto neighbour points that lack them; returns lifted nodes."""
+        reach = self.table.reach[self.label_ids[near]]
+        near_l = near.tolist()
+        lifted: list[int] = []
         for nid_new in new:
-            q2 = node_q[nid_new]
-            base = cost[nid_new]
-            for pid, dd in zip(near_l, d_l, strict=True):
-                c = base + dd
-                nodes = [m for m in pt_nodes[pid] if c < cost[m] - 1e-12]
-                if nodes:
-                    reach = succ(q2, masks[pid])
-                    for m in nodes:
-                        if node_q[m] in reach:
-                            self.reparent(m, nid_new, c)
-        return new
+            q2 = self.node_q[nid_new]
+            through = self.cost[nid_new] + d
+            nodes = self.node_at[near]
+            current = np.where(nodes >= 0, self.cost[nodes], math.inf)
+            if not self.lift:
+                current = np.where(nodes >= 0, current, -math.inf)
+            rows, cols = np.nonzero(reach[:, q2, :] & (through[:, None] < current - _EPS))
+            for i, q in zip(rows.tolist(), cols.tolist(), strict=True):
+                m = int(nodes[i, q])
+                c = float(through[i])
+                if m < 0:
+                    lifted.append(self.add_node(near_l[i], q, nid_new, c))
+                elif c < self.cost[m] - _EPS:
+                    self.reparent(m, nid_new, c)
+        return lifted
 
     def reparent(self, nid: int, parent: int, cost: float) -> None:
         """Move ``nid`` under ``parent`` with the lower cost; descendants follow."""
@@ -247,11 +271,17 @@ class ProductTree:
         self.parent[nid] = parent
         self.children[parent].append(nid)
         delta = cost - self.cost[nid]
-        stack = [nid]
+        subtree, stack = [nid], [nid]
+        children = self.children
         while stack:
-            k = stack.pop()
-            self.cost[k] += delta
-            stack.extend(self.children[k])
+            kids = children[stack.pop()]
+            if kids:
+                subtree.extend(kids)
+                stack.extend(kids)
+        if len(subtree) == 1:
+            self.cost[nid] += delta
+        else:
+            self.cost[subtree] += delta
 
     def branch(self, nid: int) -> tuple[np.ndarray, list[int]]:
         """Points and automaton states from the root to node ``nid``."""

@@ -138,7 +138,13 @@ class _Suffix(_Growth):
     """Suffix tree rooted at prefix node ``(x*, q*)``; goal: nodes that step back to it."""
 
     def __init__(
-        self, growth: _Growth, prefix_node: int, stepper: Stepper, sampler: Sampler, bias: float
+        self,
+        growth: _Growth,
+        prefix_node: int,
+        stepper: Stepper,
+        sampler: Sampler,
+        bias: float,
+        seed: bool = True,
     ) -> None:
         prefix = growth.tree
         self.prefix_node = prefix_node
@@ -150,21 +156,35 @@ class _Suffix(_Growth):
         n = paths.nba.num_states
         closing = [q for q in range(n) if self.q_star in stepper(q, self.mask_star)]
         tree = ProductTree(
-            prefix.world, prefix.oracle, stepper, prefix.clearance, prefix.eta, prefix.gamma
+            prefix.world,
+            prefix.oracle,
+            stepper,
+            n,
+            prefix.clearance,
+            prefix.eta,
+            prefix.gamma,
+            prefix.lift,
         )
         root_pid = tree.add_point(self.x_star, self.mask_star)
         tree.add_node(root_pid, self.q_star, -1, 0.0)
+        if seed:
+            others = [k for k in range(prefix.npts) if k != pid]
+            tree.seed_points(prefix.pos[others], [prefix.mask[k] for k in others])
         super().__init__(tree, paths, paths.distances_to(closing), sampler, bias, self.x_star)
         self.closers: list[tuple[int, float]] = []
 
     def step(self) -> list[int]:
         hits = super().step()
         if hits:
-            pid = self.tree.node_pt[hits[0]]
-            x = self.tree.pos[pid]
-            if self.tree.edges_ok(x[None, :], self.x_star[None, :])[0]:
-                length = float(np.linalg.norm(x - self.x_star))
-                self.closers.extend((n, length) for n in hits)
+            tree = self.tree
+            pids = sorted({tree.node_pt[n] for n in hits})
+            x = tree.pos[pids]
+            ok = tree.edges_ok(x, np.broadcast_to(self.x_star, x.shape))
+            length = np.linalg.norm(x - self.x_star, axis=1)
+            closing = {p: float(n) for p, n, g in zip(pids, length, ok, strict=True) if g}
+            self.closers.extend(
+                (n, closing[tree.node_pt[n]]) for n in hits if tree.node_pt[n] in closing
+            )
         return hits
 
     def best_cycle(self) -> tuple[int, float] | None:
@@ -187,8 +207,11 @@ class _Planner:
         clearance: float,
         options: PlannerSpec,
         rng: np.random.Generator,
+        lift: bool = True,
+        seed: bool = True,
     ) -> None:
         self.t0 = time.process_time()
+        self.seed = seed
         self.world, self.nba, self.options = world, nba, options
         self.clearance = clearance
         self.start = np.asarray(start, dtype=float).reshape(-1)
@@ -206,11 +229,13 @@ class _Planner:
         self.eta = options.eta if options.eta is not None else default_eta(world)
         self.oracle = LabelOracle(world, nba.atoms)
         self.stepper = Stepper(nba, self.oracle)
-        self.sampler = Sampler(world, self.oracle, rng, clearance)
+        self.sampler = Sampler(world, self.oracle, rng, clearance, bridge_sigma=self.eta / 2.0)
         d = world.dim
         unit_ball = math.pi ** (d / 2) / math.gamma(d / 2 + 1)
         gamma = 2.0 * (1.0 + 1.0 / d) ** (1.0 / d) * (world.volume / unit_ball) ** (1.0 / d)
-        tree = ProductTree(world, self.oracle, self.stepper, clearance, self.eta, gamma)
+        tree = ProductTree(
+            world, self.oracle, self.stepper, nba.num_states, clearance, self.eta, gamma, lift
+        )
         mask = self.oracle.masks(self.start[None, :])[0]
         roots = [q for q in self.stepper(nba.initial, mask) if q in self.acc_dist]
         if not roots:
@@ -252,7 +277,7 @@ class _Planner:
             if any(np.linalg.norm(s.x_star - x) < spread for s in self.suffixes):
                 continue
             self.suffixes.append(
-                _Suffix(self.prefix, nid, self.stepper, self.sampler, self.options.bias)
+                _Suffix(self.prefix, nid, self.stepper, self.sampler, self.options.bias, self.seed)
             )
 
     def _grow_prefix(self, n: int, until_goal: bool = False) -> None:
@@ -263,9 +288,13 @@ class _Planner:
                 return
 
     def _grow_suffixes(self, n: int, deadline: float, until_closed: bool = False) -> None:
+        """``n`` iterations of each suffix tree; the clock is read once per tree (reading the
+        CPU clock costs as much as a cheap iteration)."""
         for s in self.suffixes:
+            if math.isfinite(deadline) and self.elapsed() > deadline:
+                return
             for _ in range(n):
-                if s.iterations >= self.options.max_iterations or self.elapsed() > deadline:
+                if s.iterations >= self.options.max_iterations:
                     break
                 s.step()
                 if until_closed and s.closers:
@@ -377,10 +406,11 @@ class _Planner:
     def run(self) -> Lasso:
         first = self.first_lasso()
         t_first = self.elapsed()
-        if first.cost > 0 and self.options.refine_iterations is not None:
+        seconds = self.options.refine_seconds
+        if first.cost > 0 and seconds is not None and seconds > 0:
+            self.refine(seconds)
+        elif first.cost > 0 and seconds is None and self.options.refine_iterations > 0:
             self.refine(0.0, self.options.refine_iterations)
-        elif first.cost > 0 and self.options.refine_seconds > 0:
-            self.refine(self.options.refine_seconds)
         candidates = self.best_lassos(3)
         best = candidates[0]
         if self.options.shortcut:
