@@ -10,6 +10,7 @@ operator letter is always an operator: ``GFa`` reads as ``G F a`` (and ``Goal`` 
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 from planner.errors import FormulaError
@@ -254,11 +255,13 @@ def to_text(f: Formula) -> str:
     return f"{parts[0]} {op} {parts[1]}"
 
 
+@functools.lru_cache(maxsize=256)
 def parse(text: str) -> Formula:
     """Parse an LTL formula in spin/ltl2ba or letter syntax.
 
     Raises :class:`FormulaError` with the 1-based column of the problem and what the parser
-    expected there.
+    expected there. A formula is parsed once per process: validating a mission, planning it
+    and checking its labels ask for the same text, and the syntax tree is immutable.
     """
     from planner.ltl.parser import Parser
 
