@@ -4,6 +4,9 @@ from __future__ import annotations
 
 from pydantic import BaseModel, ConfigDict, Field
 
+DEFAULT_REFINE_ITERATIONS = 1000
+"""Default anytime budget in prefix iterations (see ``PlannerSpec.refine_iterations``)."""
+
 
 class PlannerSpec(BaseModel):
     """Options of TL-RRT* and of the decomposition into sub-tasks; every field is optional."""
@@ -38,18 +41,19 @@ class PlannerSpec(BaseModel):
     time_limit: float = Field(
         120.0, gt=0, description="CPU seconds to find a first lasso before giving up."
     )
-    refine_seconds: float = Field(
-        1.0,
+    refine_iterations: int = Field(
+        DEFAULT_REFINE_ITERATIONS,
         ge=0,
-        description="Anytime budget in CPU seconds spent improving the lasso after the first "
-        "one is found (0: stop at the first lasso).",
+        description="Anytime budget spent improving the lasso after the first one is found, in "
+        "iterations of the prefix tree (each suffix tree grows as many): the plan depends only on "
+        "the mission and the seed, not on the machine or its load (0: stop at the first lasso).",
     )
-    refine_iterations: int | None = Field(
+    refine_seconds: float | None = Field(
         None,
-        gt=0,
-        description="If set, the anytime phase runs this many iterations of the prefix "
-        "tree (and as many of each suffix tree) instead of refine_seconds: the result then no "
-        "longer depends on CPU speed and is deterministic for a seed.",
+        ge=0,
+        description="If set, the anytime budget is this many CPU seconds instead of "
+        "refine_iterations (0: stop at the first lasso); the plan then depends on the speed and "
+        "the load of the machine.",
     )
     prefix_weight: float = Field(
         0.2,

@@ -14,10 +14,12 @@ label enables the next transition on a shortest automaton path to the goal (acce
 prefix; the states that step back to ``q*`` for the suffix). Otherwise it extends toward a
 uniform free point from the nearest node of any state.
 
-Anytime: once a first lasso exists the trees keep growing for ``refine_seconds`` CPU seconds
-(RRT* rewiring shortens branches; more accepting nodes and cycles appear) and the cheapest
+Anytime: once a first lasso exists the trees keep growing for ``refine_iterations`` prefix
+iterations (and as many of each suffix tree), or for ``refine_seconds`` CPU seconds when that is
+set (RRT* rewiring shortens branches; more accepting nodes and cycles appear), and the cheapest
 lasso ``prefix_weight * prefix + (1 - prefix_weight) * suffix`` is kept; with ``shortcut`` it
-is then shortened by :mod:`planner.search.shortcut`, which keeps it a valid product run.
+is then shortened by :mod:`planner.search.shortcut`, which keeps it a valid product run. With the
+default iteration budget the plan depends only on the mission and the seed.
 """
 
 from __future__ import annotations
@@ -479,8 +481,8 @@ def plan_lasso(
     ``rng`` defaults to ``numpy.random.default_rng(options.seed)``. Raises PlanningError when
     the automaton has no accepting run, or when ``max_iterations`` / ``time_limit`` run out
     without a lasso (the message names the regions never reached). The anytime phase runs for
-    ``refine_seconds`` CPU seconds, so its result depends on the CPU's speed; with
-    ``refine_iterations`` (or ``refine_seconds = 0``) the plan is deterministic for a seed.
+    ``refine_iterations`` iterations, so the plan is deterministic for a seed; with
+    ``refine_seconds`` set it runs for that many CPU seconds and depends on the machine.
     """
     gen = rng if rng is not None else np.random.default_rng(options.seed)
     return _Planner(world, nba, start, clearance, options, gen).run()
