@@ -1,12 +1,11 @@
 """Write a mission's bundle: ``bundle.zip`` with everything needed to run it offline.
 
 Members: ``manifest.json`` (schema ``workers.manifest.Manifest``: format and version, mission,
-seeds, package versions, the automaton and the pruned one in HOA, the lasso, the exact plan, the
-ordered sub-tasks with their guides, model file names, learning curves and evaluations, the
-mission evaluation), ``models/subtask_<k>.zip`` (stable-baselines3 archives), ``README.md``
-(model card), ``plan.png``, ``learning_curves.png`` and ``rollout.png``. Read one back with
-``ConcatenatedPolicy.load`` (re-exported here).
-"""
+seeds, package versions, the automaton and the pruned one in HOA, the exact plan (its lasso
+included), the ordered sub-tasks with their guides, model file names, learning curves and
+evaluations, the mission evaluation), ``models/subtask_<k>.zip`` (stable-baselines3 archives),
+``README.md`` (model card), ``plan.png``, ``learning_curves.png`` and ``rollout.png``. Read one
+back with ``ConcatenatedPolicy.load`` (re-exported here)."""
 
 from __future__ import annotations
 
@@ -97,7 +96,6 @@ def manifest_for(
         )
         for sub, guide, result, seed in zip(plan.subtasks, guides, results, seeds, strict=True)
     ]
-    lasso = plan.lasso
     return Manifest(
         format=FORMAT,
         format_version=FORMAT_VERSION,
@@ -107,13 +105,6 @@ def manifest_for(
         packages=package_versions(),
         automaton_hoa=plan.nba.to_hoa(name=plan.formula),
         pruned_automaton_hoa=plan.pruned.to_hoa(name=plan.formula),
-        lasso={
-            "prefix": lasso.prefix.tolist(),
-            "suffix": lasso.suffix.tolist(),
-            "cost": lasso.cost,
-            "prefix_cost": lasso.prefix_cost,
-            "suffix_cost": lasso.suffix_cost,
-        },
         plan=plan_to_dict(plan),
         subtasks=entries,
         cycles=training.cycles,
@@ -155,7 +146,7 @@ def write_bundle(
         manifest = manifest_for(mission, plan, results, evaluation, seeds, files)
         partial = out.with_name(out.name + ".partial")
         with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as archive:
-            archive.writestr(MANIFEST, manifest.model_dump_json(indent=1))
+            archive.writestr(MANIFEST, manifest.model_dump_json(indent=1, exclude={"lasso"}))
             archive.writestr("README.md", model_card(manifest))
             for name in pictures:
                 archive.write(Path(tmp) / name, name)

@@ -38,7 +38,14 @@ from planner.decompose import subtask_at
 from planner.plan import MissionPlan
 from planner.serialize import plan_from_dict
 from workers.evaluation import MissionEvaluation, rollout_mission
-from workers.manifest import FORMAT, FORMAT_VERSION, MANIFEST, BundleError, Manifest, SubtaskEntry
+from workers.manifest import (
+    FORMAT,
+    MANIFEST,
+    READABLE_VERSIONS,
+    BundleError,
+    Manifest,
+    SubtaskEntry,
+)
 from workers.mission import MissionError, MissionSpec, parse_mission
 from workers.training_spec import ACTIVATIONS
 
@@ -100,10 +107,11 @@ def _manifest(path: Path, raw: bytes) -> Manifest:
         raise BundleError(f"{path}: {MANIFEST} is not valid JSON ({err})") from err
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise BundleError(f"{path}: not an ltlnav bundle (manifest format is not {FORMAT!r})")
-    if doc.get("format_version") != FORMAT_VERSION:
+    if doc.get("format_version") not in READABLE_VERSIONS:
+        readable = ", ".join(str(v) for v in sorted(READABLE_VERSIONS))
         raise BundleError(
             f"{path}: bundle format version {doc.get('format_version')!r} is not supported "
-            f"(this ltlnav reads version {FORMAT_VERSION})"
+            f"(this ltlnav reads versions {readable})"
         )
     try:
         manifest = Manifest.model_validate(doc)

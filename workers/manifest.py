@@ -13,7 +13,10 @@ from pydantic import BaseModel, ConfigDict
 from planner.errors import LtlnavError
 
 FORMAT = "ltlnav-bundle"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+"""Version 2 keeps the lasso once, in ``plan``; version 1 also had it at the top level."""
+READABLE_VERSIONS = frozenset({1, 2})
+"""Manifest versions this ltlnav reads."""
 MANIFEST = "manifest.json"
 
 
@@ -63,7 +66,8 @@ class Manifest(BaseModel):
     packages: dict[str, str]
     automaton_hoa: str
     pruned_automaton_hoa: str
-    lasso: dict[str, Any]
+    lasso: dict[str, Any] | None = None
+    """Version 1 only: a copy of ``plan["lasso"]``."""
     plan: dict[str, Any]
     subtasks: list[SubtaskEntry]
     cycles: int

@@ -79,12 +79,13 @@ def test_bundle_members_and_manifest(
     expected = {f"models/subtask_{k}.zip" for k in range(len(plan.subtasks))}
     assert expected | {"manifest.json", "README.md", "plan.png", "learning_curves.png"} <= names
     assert "rollout.png" in names
-    assert manifest["format"] == "ltlnav-bundle" and manifest["format_version"] == 1
+    assert manifest["format"] == "ltlnav-bundle" and manifest["format_version"] == 2
     assert manifest["mission"]["task"] == mission.task
     assert manifest["automaton_hoa"].startswith("HOA: v1")
     assert manifest["seeds"]["subtasks"] == [0, 1, 2, 3]
     assert "stable-baselines3" in manifest["packages"] and "torch" in manifest["packages"]
-    assert manifest["lasso"]["prefix"][0] == [0.5, 0.5]
+    assert manifest["plan"]["lasso"]["prefix"][0] == [0.5, 0.5]
+    assert "lasso" not in manifest  # the lasso is stored once, in the plan
     assert [s["goal"] for s in manifest["subtasks"]] == [s.goal for s in plan.subtasks]
     for entry, result in zip(manifest["subtasks"], results, strict=True):
         assert entry["steps"] == result.steps == 60
@@ -152,6 +153,18 @@ def manifest_with(bundle: Path, **fields: object) -> bytes:
         manifest = json.loads(archive.read("manifest.json"))
     manifest.update(fields)
     return json.dumps(manifest).encode()
+
+
+def test_a_version_1_bundle_with_its_lasso_copy_still_loads(
+    trained: tuple[MissionSpec, MissionPlan, list[TrainResult], Path], tmp_path: Path
+) -> None:
+    *_, bundle = trained
+    with zipfile.ZipFile(bundle) as archive:
+        plan = json.loads(archive.read("manifest.json"))["plan"]
+    old = manifest_with(bundle, format_version=1, lasso=plan["lasso"])
+    policy = ConcatenatedPolicy.load(rewrite(bundle, tmp_path / "v1.zip", {"manifest.json": old}))
+    assert policy.manifest.lasso == plan["lasso"]
+    policy.close()
 
 
 def test_bad_bundles_are_refused_before_any_model_is_loaded(
