@@ -29,6 +29,10 @@ from planner.search.planner_spec import PlannerSpec
 from planner.search.reachability import restrict_to_reachable
 from planner.search.tl_rrt_star import Lasso, default_eta, plan_lasso, unsatisfiable
 
+MARGIN_ITERATIONS = 10_000
+"""Iterations per tree the attempt with ``planner.margin`` may spend before the plan falls back
+to the robot radius alone."""
+
 
 @dataclass
 class MissionPlan:
@@ -116,8 +120,17 @@ def plan_mission(
     """
     opts = options if options is not None else PlannerSpec()
     if opts.margin > 0:
+        # An iteration cap, not the CPU time limit, ends the attempt with the margin, so the
+        # choice between the two clearances is the same on every machine.
+        cap = min(opts.max_iterations, MARGIN_ITERATIONS)
         try:
-            return _plan(world, task, start, clearance + opts.margin, opts)
+            return _plan(
+                world,
+                task,
+                start,
+                clearance + opts.margin,
+                opts.model_copy(update={"max_iterations": cap}),
+            )
         except PlanningError:
             pass  # too narrow somewhere with the margin: the radius alone decides
     return _plan(world, task, start, clearance, opts)
