@@ -7,6 +7,7 @@ searched for 100 s) fails loudly, and check that the plans are valid.
 
 from __future__ import annotations
 
+import itertools
 import time
 from pathlib import Path
 
@@ -43,11 +44,9 @@ def test_two_rooms_cycle_goes_through_the_door() -> None:
     world = spec.build_world()
     plan = plan_mission(world, spec.task, spec.robot.position(), spec.robot.radius, spec.planner)
     suffix = plan.lasso.suffix
-    crossings = [
-        (a[0] - 10.0) * (b[0] - 10.0) < 0 for a, b in zip(suffix[:-1], suffix[1:], strict=True)
-    ]
+    crossings = [(a[0] - 10.0) * (b[0] - 10.0) < 0 for a, b in itertools.pairwise(suffix)]
     assert sum(crossings) >= 2 and sum(crossings) % 2 == 0  # out through the door and back
-    for a, b in zip(suffix[:-1], suffix[1:], strict=True):
+    for a, b in itertools.pairwise(suffix):
         if (a[0] - 10.0) * (b[0] - 10.0) < 0:
             y = a[1] + (b[1] - a[1]) * (10.0 - a[0]) / (b[0] - a[0])
             assert 9.65 + spec.robot.radius <= y <= 10.35 - spec.robot.radius
