@@ -376,3 +376,41 @@ def test_a_restarted_job_keeps_one_start_point(settings: Settings) -> None:
     assert curve() == [(0, 4, 0.25)]
     run(100)  # resumed: the points before the checkpoint stay
     assert curve() == [(0, 4, 0.25)]
+
+
+def test_one_walk_through_the_steps_parses_the_mission_and_plans_once(
+    settings: Settings, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Planning, every training job and the assembly in one process: the document is
+    validated once, the formula parsed once, the plan made once and never read back."""
+    import planner.ltl.parser
+    import planner.serialize
+    import workers.run
+    from planner.ltl.formula import parse
+
+    calls: dict[str, int] = {}
+
+    def counted(module: Any, name: str) -> None:
+        real = getattr(module, name)
+
+        def wrapper(*args: Any, **kwargs: Any) -> Any:
+            calls[name] = calls.get(name, 0) + 1
+            return real(*args, **kwargs)
+
+        monkeypatch.setattr(module, name, wrapper)
+
+    counted(workers.run, "parse_mission")
+    counted(workers.run, "plan_mission")
+    counted(workers.run, "plan_from_dict")
+    counted(planner.serialize, "plan_from_dict")
+    counted(planner.ltl.parser.Parser, "parse")
+    forget_open_runs()
+    parse.cache_clear()
+    document = tiny_mission(n_timesteps=50, eval_freq=50, handover_rounds=0)
+    mission_id = submit(settings, document.model_dump(mode="json"))
+    sent = Recorder()
+    assert plan_step(settings, mission_id, sent) == "planned"
+    for job in load(settings, mission_id)[1]:
+        assert train_step(settings, mission_id, job.index, sent, in_chord=True) == "done"
+    assert assemble_step(settings, mission_id, sent) == "done"
+    assert calls == {"parse_mission": 1, "plan_mission": 1, "parse": 1}
