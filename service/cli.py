@@ -1,4 +1,5 @@
-"""The ``ltlnav`` command line: one Typer app; later issues add their commands here."""
+"""The ``ltlnav`` command line: one Typer app with every command (what they print at length
+lives beside it: ``service.train_progress``, ``service.progress_printer``)."""
 
 from __future__ import annotations
 
@@ -158,15 +159,7 @@ def train(
     """Plan a mission, train every sub-task, evaluate the whole mission, write DIR/bundle.zip.
 
     Re-running on the same folder resumes from the checkpoints."""
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TaskID,
-        TextColumn,
-        TimeRemainingColumn,
-    )
-
+    from service.train_progress import TrainProgress
     from workers.mission import load_mission
     from workers.pipeline import run_pipeline
 
@@ -185,24 +178,9 @@ def train(
         training = spec.training.model_validate({**spec.training.model_dump(), **update})
         spec = spec.model_copy(update={"training": training})
     folder = out if out is not None else Path("runs") / spec.name
-    columns = (
-        TextColumn("{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TextColumn("success {task.fields[success]}"),
-        TimeRemainingColumn(),
-    )
-    with Progress(*columns, transient=False) as progress:
-        tasks: dict[int, TaskID] = {}
-
-        def show(subtask: int, steps: int, rate: float | None, total: int) -> None:
-            if subtask not in tasks:
-                tasks[subtask] = progress.add_task(f"sub-task {subtask}", total=total, success="-")
-            shown = "-" if rate is None else f"{100 * rate:.0f} %"
-            progress.update(tasks[subtask], completed=steps, total=total, success=shown)
-
+    with TrainProgress() as bars:
         try:
-            result = run_pipeline(spec, folder, jobs=jobs, on_progress=show)
+            result = run_pipeline(spec, folder, jobs=jobs, on_progress=bars.show)
         except LtlnavError as error:
             raise _fail(error) from error
     for r in result.results:
@@ -221,7 +199,7 @@ def train(
             + ("kept" if repair.kept else "discarded")
         )
     ev = result.evaluation
-    typer.echo(f"mission {_rollout_summary(ev)}")
+    typer.echo(f"mission {ev.summary()}")
     typer.echo(f"bundle written to {result.bundle}")
 
 
@@ -247,7 +225,7 @@ def rollout(
         result = policy.evaluate(episodes, seed=seed, cycles=cycles)
     finally:
         policy.close()
-    typer.echo(_rollout_summary(result))
+    typer.echo(result.summary())
     for where, kinds in sorted(result.failures.items()):
         typer.echo(f"  failures at sub-task {where}: {kinds}")
     if json_out is not None:
@@ -256,19 +234,6 @@ def rollout(
         plot_out.parent.mkdir(parents=True, exist_ok=True)
         plot_rollouts(policy.mission.build_world(), policy.plan, result, plot_out)
         typer.echo(f"picture written to {plot_out}")
-
-
-def _rollout_summary(result: object) -> str:
-    from workers.evaluation import MissionEvaluation
-
-    assert isinstance(result, MissionEvaluation)
-    cycles = f", {result.cycles} suffix cycles" if result.cycles else ""
-    return (
-        f"success rate {100 * result.success_rate:.1f} % over {result.episodes} rollouts"
-        f"{cycles}; collisions {100 * result.collision_rate:.1f} %, timeouts "
-        f"{100 * result.timeout_rate:.1f} %, automaton rejections "
-        f"{100 * result.rejected_rate:.1f} %"
-    )
 
 
 @app.command("migrate")
@@ -359,6 +324,7 @@ def submit(
     """Submit a mission to the service; with --wait print its progress until it ends and
     download its bundle (exit code 1 when it fails or is cancelled)."""
     from service.client import ServiceClient, ServiceError
+    from service.progress_printer import ProgressPrinter
     from service.serve import display_host
     from service.settings import Settings
     from workers.documents import read_document
@@ -410,35 +376,6 @@ def submit(
             f"{evaluation.get('episodes', '?')} rollouts"
         )
     typer.echo(f"bundle written to {target}")
-
-
-class ProgressPrinter:
-    """Prints a mission's status when it changes, and a sub-task's progress when its status
-    changes or it passes another tenth of its budget."""
-
-    def __init__(self) -> None:
-        self.shown: dict[str, Any] = {}
-
-    def __call__(self, mission: dict[str, Any]) -> None:
-        self._line("status", mission["status"], f"status: {mission['status']}")
-        news = mission.get("reason") if mission["status"] == "evaluating" else None
-        if news:  # the hand-over repair: one line per repair job, not per progress write
-            self._line("news", news.partition(":")[0], f"  {news}")
-        for job in mission.get("jobs", []):
-            rate = job.get("success_rate")
-            eta = job.get("eta_seconds")
-            text = (
-                f"  sub-task {job['index']}: {job['status']}, {job['steps_done']}/{job['budget']}"
-                f" steps, success {'-' if rate is None else f'{100 * rate:.0f} %'}"
-                + ("" if eta is None or job["status"] != "running" else f", ETA {eta:.0f} s")
-            )
-            tenth = 10 * job["steps_done"] // max(job["budget"], 1)
-            self._line(f"job{job['index']}", (job["status"], tenth), text)
-
-    def _line(self, key: str, value: Any, text: str) -> None:
-        if self.shown.get(key) != value:
-            self.shown[key] = value
-            typer.echo(text)
 
 
 def main() -> None:

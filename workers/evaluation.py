@@ -104,6 +104,16 @@ class MissionEvaluation:
         out.pop("handovers")
         return out
 
+    def summary(self) -> str:
+        """One line: the success rate and how the rest failed."""
+        cycles = f", {self.cycles} suffix cycles" if self.cycles else ""
+        return (
+            f"success rate {100 * self.success_rate:.1f} % over {self.episodes} rollouts"
+            f"{cycles}; collisions {100 * self.collision_rate:.1f} %, timeouts "
+            f"{100 * self.timeout_rate:.1f} %, automaton rejections "
+            f"{100 * self.rejected_rate:.1f} %"
+        )
+
 
 def rollout_mission(
     act: Act,

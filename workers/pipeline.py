@@ -23,8 +23,9 @@ from workers.mission import MissionSpec
 from workers.run import MissionRun, RunResult
 from workers.training import TrainResult
 
-PipelineProgress = Callable[[int, int, float | None, int], None]
-"""``on_progress(subtask, steps, success_rate, total)``, called in the parent process."""
+PipelineProgress = Callable[[int, int, float | None, int, bool], None]
+"""``on_progress(subtask, steps, success_rate, total, done)``, called in the parent process;
+``done`` once the job has finished (at its budget, its target or a cancel)."""
 
 
 class _QueueProgress(TrainingHooks):
@@ -35,12 +36,20 @@ class _QueueProgress(TrainingHooks):
         self.subtask, self.updates, self.offset = subtask, updates, offset
 
     def progress(self, steps: int, success_rate: float | None, total: int) -> None:
-        self.updates.put((self.subtask, self.offset + steps, success_rate, self.offset + total))
+        self.put(steps, success_rate, total, False)
+
+    def put(self, steps: int, success_rate: float | None, total: int, done: bool) -> None:
+        offset = self.offset
+        self.updates.put((self.subtask, offset + steps, success_rate, offset + total, done))
 
 
 def _run_job(run: MissionRun, job: SubtaskJob, updates: Any, offset: int) -> TrainResult:
     """One training job in a worker process."""
-    return run.train(job, _QueueProgress(job.subtask, updates, offset))
+    hooks = _QueueProgress(job.subtask, updates, offset)
+    result = run.train(job, hooks)
+    rate = result.curve[-1][1] if result.curve else None
+    hooks.put(result.steps, rate, job.training.n_timesteps, True)
+    return result
 
 
 def run_pipeline(
@@ -57,7 +66,7 @@ def run_pipeline(
     first = run.jobs()
     if on_progress is not None:  # every sub-task shows up at once, in order
         for job in first:
-            on_progress(job.subtask, 0, None, job.training.n_timesteps)
+            on_progress(job.subtask, 0, None, job.training.n_timesteps, False)
     workers = max(1, min(jobs or os.cpu_count() or 1, len(first)))
     # forkserver: workers fork from a clean single-threaded server (this process runs a relay
     # thread), which imports torch and stable-baselines3 once for all of them.

@@ -20,10 +20,10 @@ import pytest
 from typer.testing import CliRunner
 
 from service.api.app import create_app
-from service.cli import ProgressPrinter
 from service.cli import app as cli
 from service.db import Database, upgrade
 from service.models import MissionStatus
+from service.progress_printer import ProgressPrinter
 from service.settings import Settings
 from tests.service.api_helpers import REPO, advance, free_port, served, settings_for, tiny
 from workers.bundle_reader import read_bundle
@@ -91,20 +91,24 @@ def test_submit_wait_downloads_the_bundle_or_fails(
         assert not (out / "bundle.zip").exists()
 
 
-def test_the_progress_shows_each_repair_job_once(capsys: pytest.CaptureFixture[str]) -> None:
+def test_the_progress_shows_each_repair_round_and_job_once(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
     show = ProgressPrinter()
-    for reason in (
-        "hand-over repair of sub-task 1 (1 of 2): 0 of 30000 steps",
-        "hand-over repair of sub-task 1 (1 of 2): 5000 of 30000 steps, success 40%",
-        "hand-over repair of sub-task 2 (2 of 2): 0 of 30000 steps",
-    ):
-        show({"status": "evaluating", "reason": reason, "jobs": []})
-    show({"status": "failed", "reason": "assembly: boom", "jobs": []})
+    news = "hand-over repair round 1: mission success 40 %, below its target; sub-task(s) 1, 2"
+    job = {"index": 1, "status": "done", "steps_done": 100, "budget": 100, "success_rate": 0.5}
+    repair = {**job, "round": 1, "status": "running", "steps_done": 0, "budget": 30000}
+    for steps in (0, 1000, 5000):
+        repair = {**repair, "steps_done": steps, "success_rate": 0.4 if steps else None}
+        show({"status": "training", "reason": news, "jobs": [job], "repairs": [repair]})
+    show({"status": "failed", "reason": "assembly: boom", "jobs": [job], "repairs": []})
     lines = capsys.readouterr().out.splitlines()
     assert lines == [
-        "status: evaluating",
-        "  hand-over repair of sub-task 1 (1 of 2): 0 of 30000 steps",
-        "  hand-over repair of sub-task 2 (2 of 2): 0 of 30000 steps",
+        "status: training",
+        f"  {news}",
+        "  sub-task 1: done, 100/100 steps, success 50 %",
+        "  repair 1 of sub-task 1: running, 0/30000 steps, success -",
+        "  repair 1 of sub-task 1: running, 5000/30000 steps, success 40 %",
         "status: failed",
     ]
 

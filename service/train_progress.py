@@ -1,0 +1,73 @@
+"""The progress bars of ``ltlnav train``: one per sub-task, with its latest success rate, the
+time left while it trains and the time it took once it is done (a job that stopped at its
+target long before its budget shows how long it ran, not the hours its budget would take)."""
+
+from __future__ import annotations
+
+from datetime import timedelta
+from types import TracebackType
+
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    ProgressColumn,
+    Task,
+    TaskID,
+    TextColumn,
+    TimeRemainingColumn,
+)
+from rich.text import Text
+
+
+class RemainingOrElapsed(ProgressColumn):
+    """The estimated time left while a job runs, the time it ran once it is done (the
+    ``took`` field, seconds)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.remaining = TimeRemainingColumn()
+
+    def render(self, task: Task) -> Text:
+        took = task.fields.get("took")
+        if took is None:
+            return self.remaining.render(task)
+        return Text(f"done in {timedelta(seconds=round(took))}", style="progress.elapsed")
+
+
+class TrainProgress:
+    """``show(subtask, steps, success_rate, total, done)`` for ``workers.pipeline``'s
+    ``on_progress``, drawn as rich progress bars while the block runs."""
+
+    def __init__(self) -> None:
+        self.progress = Progress(
+            TextColumn("{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("success {task.fields[success]}"),
+            RemainingOrElapsed(),
+            transient=False,
+        )
+        self.tasks: dict[int, TaskID] = {}
+
+    def __enter__(self) -> TrainProgress:
+        self.progress.__enter__()
+        return self
+
+    def __exit__(
+        self,
+        kind: type[BaseException] | None,
+        error: BaseException | None,
+        trace: TracebackType | None,
+    ) -> None:
+        self.progress.__exit__(kind, error, trace)
+
+    def show(self, subtask: int, steps: int, rate: float | None, total: int, done: bool) -> None:
+        task = self.tasks.get(subtask)
+        if task is None:
+            task = self.tasks[subtask] = self.progress.add_task(
+                f"sub-task {subtask}", total=total, success="-", took=None
+            )
+        shown = "-" if rate is None else f"{100 * rate:.0f} %"
+        took = self.progress.tasks[task].elapsed if done else None
+        self.progress.update(task, completed=steps, total=total, success=shown, took=took)

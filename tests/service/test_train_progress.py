@@ -1,0 +1,22 @@
+"""The progress bars of ``ltlnav train``: time left while a sub-task trains, the time it took
+once it is done, even far below its budget."""
+
+from __future__ import annotations
+
+from service.train_progress import RemainingOrElapsed, TrainProgress
+
+
+def test_a_sub_task_done_at_its_target_shows_how_long_it_ran() -> None:
+    bars = TrainProgress()
+    column = RemainingOrElapsed()
+    bars.show(0, 0, None, 150_000, False)
+    bars.show(0, 10_000, 1.0, 150_000, False)
+    running = bars.progress.tasks[0]
+    assert not column.render(running).plain.startswith("done")
+    bars.show(0, 10_000, 1.0, 150_000, True)
+    done = bars.progress.tasks[0]
+    assert column.render(done).plain.startswith("done in ")
+    assert done.fields["success"] == "100 %" and done.completed == 10_000
+    assert done.fields["took"] is not None
+    bars.show(0, 12_000, 0.5, 180_000, False)  # a repair round trains it again
+    assert not column.render(bars.progress.tasks[0]).plain.startswith("done")
