@@ -30,8 +30,9 @@ from pydantic_core import PydanticCustomError
 
 from envs.spec import RobotSpec
 from planner.errors import FormulaError, WorldError
+from planner.geometry.shape_spec import raise_problems
 from planner.geometry.world import World
-from planner.geometry.world_spec import RESERVED_LABEL, WorldSpec, raise_problems
+from planner.geometry.world_spec import RESERVED_LABEL, WorldSpec
 from planner.ltl.formula import atoms, check_mission_formula, parse
 from planner.search.planner_spec import PlannerSpec
 from workers.documents import read_document

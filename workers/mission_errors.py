@@ -16,7 +16,7 @@ from typing import Annotated, Any
 from pydantic import BaseModel, ValidationError
 
 from planner.errors import LtlnavError
-from planner.geometry.world_spec import PROBLEMS_ERROR, SHAPE_KINDS
+from planner.geometry.shape_spec import PROBLEMS_ERROR, SHAPE_KINDS
 
 
 class MissionError(LtlnavError):

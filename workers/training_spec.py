@@ -27,7 +27,7 @@ from envs.errors import EnvConfigError
 from envs.observation import HEADING_FEATURES
 from envs.options import EnvOptions
 from envs.rewards import REWARD_MODES, RewardConfig, reward_mode
-from planner.geometry.world_spec import raise_problems
+from planner.geometry.shape_spec import raise_problems
 
 Algorithm = Literal["sac", "td3", "ddpg", "ppo"]
 RewardModeName = Literal["rrt", "rrt-paper", "g-rrt", "ned", "tl"]

@@ -10,9 +10,10 @@ from pydantic import ValidationError
 
 from planner.errors import WorldError
 from planner.geometry.random_obstacles import boxes_distance_to, generate_boxes
+from planner.geometry.shape_spec import PolygonSpec
 from planner.geometry.shapes import Ball, Box, Polygon
 from planner.geometry.world import World
-from planner.geometry.world_spec import PolygonSpec, WorldSpec
+from planner.geometry.world_spec import WorldSpec
 
 BOUNDS = [[-10.0, 10.0], [-10.0, 10.0]]
 
