@@ -16,6 +16,10 @@ One JSON line per run goes to ``--out``/results.jsonl and a table is printed:
 config, sub-task, seed, steps to first >= 95 % quick eval, final success over the trials,
 collision rate, training steps per second, wall time.
 
+Its length (one script past 400 lines) is the list of named configurations, each documented
+where declared, beside the one runner they share; splitting them would separate a lever from
+the runner that measures it.
+
 Run as ``.venv/bin/python bench/learning_levers.py --configs rrt,rrt-cur --subtasks 0
 --seeds 0,1 --steps 30000`` (``--list`` names every configuration).
 """

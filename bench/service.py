@@ -6,6 +6,9 @@ databases N and N+1 are emptied before each phase; each phase creates and drops 
 PostgreSQL database on that server). Starts its own ``ltlnav serve`` / ``ltlnav worker``
 processes on free ports with their data under a temporary directory, and prints one table.
 
+It is one script past 400 lines on purpose: its three phases share the process harness (start,
+wait, stop) and print one table.
+
 1. ``POST /missions`` latency (sequential submissions, API without a worker: missions queue).
 2. ``GET /missions/{id}`` latency with ``--pollers`` concurrent clients (httpx, asyncio), each
    reading every ``--interval`` seconds (1 s: ``ltlnav submit --wait`` and the dashboard poll

@@ -14,6 +14,9 @@ transition made, i.e. the whole mission from the real start, one prefix and one 
 Rows that train every sub-task also roll out the concatenated policy on the whole mission
 (``training.mission_episodes`` rollouts, ``training.cycles`` suffix cycles).
 
+One script a little past 400 lines: the row presets, the runner and the report print one
+table and resume from one folder layout.
+
 What the env and reward cost against raw stable-baselines3 is ``bench/overhead.py``.
 
 Run ``.venv/bin/python bench/train.py`` (the ``table1`` preset; hours on two cores) or
