@@ -120,6 +120,7 @@ class Mission(Base):
     __table_args__ = (
         Index("ix_missions_owner_created", "owner", "created_at", "id"),
         Index("ix_missions_status_updated", "status", "updated_at"),
+        Index("ix_missions_owner_idempotency_key", "owner", "idempotency_key"),
     )
 
     id: Mapped[str] = mapped_column(String(36), primary_key=True, default=lambda: str(uuid.uuid4()))
@@ -147,6 +148,12 @@ class Mission(Base):
     """Set by a cancel request; training hooks read it and stop cooperatively."""
     repairs: Mapped[list[Any] | None] = mapped_column(JSONDocument)
     """``RepairRound.to_json()`` of every hand-over repair round judged so far."""
+    plan_attempts: Mapped[int] = mapped_column(Integer, default=0)
+    """How many times a worker began planning it (a crash mid-plan counts one)."""
+    assembly_attempts: Mapped[int] = mapped_column(Integer, default=0)
+    """How many times a worker began assembling it (each round's assembly counts anew)."""
+    idempotency_key: Mapped[str | None] = mapped_column(String(200))
+    """The ``Idempotency-Key`` it was submitted with: a repeat from the same API key gets it."""
 
     jobs: Mapped[list[Job]] = relationship(
         back_populates="mission",
@@ -194,7 +201,10 @@ class Job(Base):
     started_at: Mapped[datetime | None]
     finished_at: Mapped[datetime | None]
     attempts: Mapped[int] = mapped_column(Integer, default=0)
-    """How many times a worker started it (above 1: redelivered or reconciled)."""
+    """How many times a worker started it (above 1: redelivered or reconciled). The value a
+    claim set is that attempt's fencing token: every write of the attempt requires it."""
+    not_before: Mapped[datetime | None]
+    """A job put back after a transient failure waits until then (backoff)."""
     worker: Mapped[str | None] = mapped_column(String(255))
     """Hostname / process of the worker that runs or ran it."""
     result: Mapped[dict[str, Any] | None]

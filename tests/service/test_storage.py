@@ -93,7 +93,7 @@ def test_settings_reject_stale_below_heartbeat(monkeypatch: pytest.MonkeyPatch) 
 
 # --- migrations ---------------------------------------------------------------------------
 
-HEAD = "0002"
+HEAD = "0003"
 """The newest migration."""
 
 
