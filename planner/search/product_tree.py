@@ -35,10 +35,13 @@ import numpy as np
 from planner.geometry.labels import LabelOracle
 from planner.geometry.world import World
 from planner.search.point_index import PointIndex
+from planner.search.roadmap import Roadmap, product_shortest_paths
 
 Successors = Callable[[int, int], tuple[int, ...]]
 
 _EPS = 1e-12
+_STEPS = np.array([1.0, 0.5, 0.25])
+"""Fractions of the steering step tried, longest first."""
 
 
 def edges_ok(
@@ -124,6 +127,8 @@ class ProductTree:
         self.reached = PointIndex(self.dim)
         """The points that carry a node: the tree grows from these."""
         self.layers: dict[int, PointIndex] = {}
+        self.roadmap = Roadmap()
+        """The segments checked valid so far (a warm start for suffix trees)."""
         self.entered = 0
         """Union of the label masks of the reached points: the regions the tree has been in."""
 
@@ -150,6 +155,33 @@ class ProductTree:
         lift their states onto, so the tree does not have to find the same passages again."""
         for x, mask in zip(points, masks, strict=True):
             self.add_point(x, mask)
+
+    def seed_from(self, other: ProductTree, pid: int, q: int) -> list[int]:
+        """Become the product shortest-path tree, rooted at ``(other's point pid, q)``, of the
+        roadmap ``other`` has checked (:mod:`planner.search.roadmap`); the tree must be empty
+        and share ``other``'s world, clearance and automaton. Returns the nodes created."""
+        order = [pid] + [k for k in range(other.npts) if k != pid]
+        self.seed_points(other.pos[order], [other.mask[k] for k in order])
+        new_id = np.empty(other.npts, dtype=np.int64)
+        new_id[order] = np.arange(other.npts)
+        u, v, d = other.roadmap.edges()
+        cost, pred = product_shortest_paths(
+            new_id[u], new_id[v], d, self.label_ids[: self.npts], self.table.reach, 0, q
+        )
+        root = self.add_node(0, q, -1, 0.0)
+        points, states = np.nonzero(np.isfinite(cost))
+        rank = np.lexsort((states, points, cost[points, states]))
+        created = [root]
+        q_count = self.num_states
+        for k in rank.tolist():
+            p, s = int(points[k]), int(states[k])
+            if p == 0 and s == q:
+                continue
+            before = int(pred[p, s])
+            parent = int(self.node_at[before // q_count, before % q_count])
+            assert parent >= 0, "Dijkstra's predecessor is cheaper, hence created first"
+            created.append(self.add_node(p, s, parent, float(cost[p, s])))
+        return created
 
     def add_node(self, pid: int, q: int, parent: int, cost: float) -> int:
         """Create product node ``(point pid, q)`` under ``parent`` (-1 for a root)."""
@@ -202,9 +234,15 @@ class ProductTree:
         if dist <= _EPS:
             return []
         x_near = self.pos[pid_near]
-        x_new = target if dist <= self.eta else x_near + (target - x_near) * (self.eta / dist)
-        if self.world.in_collision(x_new[None, :], self.clearance)[0]:
+        # Steer by eta, or by half or a quarter of the step when the full one ends in an
+        # obstacle: in clutter most full steps toward a goal region do, and a shorter free step
+        # still extends the tree toward it.
+        step = min(self.eta, dist) * _STEPS / dist
+        tries = x_near + step[:, None] * (target - x_near)
+        free = np.flatnonzero(~self.world.in_collision(tries, self.clearance))
+        if free.size == 0:
             return []
+        x_new = target if free[0] == 0 and dist <= self.eta else tries[free[0]]
         near = self.index.within(x_new, self.near_radius(), self.near_count())
         if not np.any(near == pid_near):
             near = np.append(near, pid_near)
@@ -234,6 +272,7 @@ class ProductTree:
         if reached.size == 0:
             return []
         pid_new = self.add_point(x_new, mask_new)
+        self.roadmap.record(pid_new, near, d)
         new = [
             self.add_node(pid_new, int(q2), int(nodes[row[src[q2]], src[q2]]), float(best[q2]))
             for q2 in reached.tolist()

@@ -167,27 +167,33 @@ class _Suffix(_Growth):
             prefix.gamma,
             prefix.lift,
         )
-        root_pid = tree.add_point(self.x_star, self.mask_star)
-        tree.add_node(root_pid, self.q_star, -1, 0.0)
         if seed:
-            others = [k for k in range(prefix.npts) if k != pid]
-            tree.seed_points(prefix.pos[others], [prefix.mask[k] for k in others])
+            seeded = tree.seed_from(prefix, pid, self.q_star)
+        else:
+            tree.add_node(tree.add_point(self.x_star, self.mask_star), self.q_star, -1, 0.0)
+            seeded = []
         super().__init__(tree, paths, paths.distances_to(closing), sampler, bias, self.x_star)
         self.closers: list[tuple[int, float]] = []
+        self._close([n for n in seeded if self.dist.get(tree.node_q[n]) == 0])
 
     def step(self) -> list[int]:
         hits = super().step()
-        if hits:
-            tree = self.tree
-            pids = sorted({tree.node_pt[n] for n in hits})
-            x = tree.pos[pids]
-            ok = tree.edges_ok(x, np.broadcast_to(self.x_star, x.shape))
-            length = np.linalg.norm(x - self.x_star, axis=1)
-            closing = {p: float(n) for p, n, g in zip(pids, length, ok, strict=True) if g}
-            self.closers.extend(
-                (n, closing[tree.node_pt[n]]) for n in hits if tree.node_pt[n] in closing
-            )
+        self._close(hits)
         return hits
+
+    def _close(self, hits: list[int]) -> None:
+        """Record the nodes among ``hits`` (in closing states) with a valid edge back to x*."""
+        tree = self.tree
+        pids = sorted({tree.node_pt[n] for n in hits} - {0})  # point 0 is x* itself
+        if not pids:
+            return
+        x = tree.pos[pids]
+        ok = tree.edges_ok(x, np.broadcast_to(self.x_star, x.shape))
+        length = np.linalg.norm(x - self.x_star, axis=1)
+        closing = {p: float(n) for p, n, g in zip(pids, length, ok, strict=True) if g}
+        self.closers.extend(
+            (n, closing[tree.node_pt[n]]) for n in hits if tree.node_pt[n] in closing
+        )
 
     def best_cycle(self) -> tuple[int, float] | None:
         """The closing node with the cheapest cycle and that cycle's length."""

@@ -1,0 +1,85 @@
+"""The verified edges a product tree has checked, and a warm start for suffix trees from them.
+
+Every RRT* step checks the segments from the new point to its neighbours (collision free, at most
+one label change) and forgets the answer. Kept, those segments form a roadmap of the space the
+prefix tree explored. A suffix tree of TL-RRT* searches the same space in the product with other
+automaton states, from the root ``(x*, q*)``: instead of rediscovering every passage by sampling
+(a patrol's cycle must cross a narrow door twice), it starts as the shortest-path tree of the
+product of that roadmap with the automaton (Dijkstra, scipy's csgraph), which is a valid product
+tree: every node's parent reaches it by a checked segment and an automaton transition under the
+label of the node's point. RRT* steps then grow and rewire it as usual.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import dijkstra
+
+
+class Roadmap:
+    """Undirected geometric edges ``u - v`` of length ``d`` between point ids, as checked."""
+
+    def __init__(self) -> None:
+        self._u: list[np.ndarray] = []
+        self._v: list[np.ndarray] = []
+        self._d: list[np.ndarray] = []
+
+    def record(self, u: int, v: np.ndarray, d: np.ndarray) -> None:
+        """Segments from point ``u`` to points ``v`` (lengths ``d``) are valid edges."""
+        self._u.append(np.full(len(v), u, dtype=np.int64))
+        self._v.append(np.asarray(v, dtype=np.int64))
+        self._d.append(np.asarray(d, dtype=float))
+
+    def edges(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(u, v, d) arrays of all the edges recorded."""
+        if not self._u:
+            empty = np.empty(0, dtype=np.int64)
+            return empty, empty, np.empty(0)
+        return np.concatenate(self._u), np.concatenate(self._v), np.concatenate(self._d)
+
+
+def product_shortest_paths(
+    u: np.ndarray,
+    v: np.ndarray,
+    d: np.ndarray,
+    labels: np.ndarray,
+    reach: np.ndarray,
+    root_point: int,
+    root_state: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Dijkstra from ``(root_point, root_state)`` over the product of an undirected roadmap
+    (edges ``u - v``, lengths ``d``) with an automaton: ``(a, q) -> (b, q')`` when ``a - b`` is an
+    edge and ``reach[labels[b], q, q']``. Returns the (points, states) arrays of costs and of
+    predecessor product indices ``point * Q + state`` (-9999 where none)."""
+    q_count = reach.shape[1]
+    n_points = len(labels)
+    a = np.concatenate([u, v])
+    b = np.concatenate([v, u])
+    w = np.concatenate([d, d])
+    rows, cols, weights = [], [], []
+    for q in range(q_count):
+        edge, q2 = np.nonzero(reach[labels[b], q, :])
+        rows.append(a[edge] * q_count + q)
+        cols.append(b[edge] * q_count + q2)
+        weights.append(w[edge])
+    size = n_points * q_count
+    cost, pred = dijkstra(
+        _min_duplicates(rows, cols, weights, size),
+        directed=True,
+        indices=root_point * q_count + root_state,
+        return_predecessors=True,
+    )
+    return cost.reshape(n_points, q_count), pred.reshape(n_points, q_count)
+
+
+def _min_duplicates(
+    rows: list[np.ndarray], cols: list[np.ndarray], weights: list[np.ndarray], size: int
+) -> csr_matrix:
+    """A sparse matrix of the edges keeping, for repeated (row, col) pairs, the least weight."""
+    r, c, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(weights)
+    order = np.lexsort((w, c, r))
+    r, c, w = r[order], c[order], w[order]
+    first = np.ones(len(r), dtype=bool)
+    first[1:] = (r[1:] != r[:-1]) | (c[1:] != c[:-1])
+    return csr_matrix((w[first], (r[first], c[first])), shape=(size, size))
