@@ -25,6 +25,7 @@ from celery.signals import worker_init, worker_ready, worker_shutdown
 from kombu import Connection
 from kombu.transport import sqlalchemy as kombu_sqla
 
+from service.redact import redact_url, redact_urls
 from service.settings import Settings, get_settings
 
 log = logging.getLogger(__name__)
@@ -168,7 +169,12 @@ def broker_ok(settings: Settings, timeout: float = 2.0) -> bool:
                 connection.default_channel.queue_declare(queue=QUEUE, passive=False)
             outcome.append(True)
         except Exception as error:  # any failure means "not healthy"
-            log.warning("broker %s unreachable: %s", settings.broker_url, error)
+            # Both may quote the URL, whose password must not reach the log.
+            log.warning(
+                "broker %s unreachable: %s",
+                redact_url(settings.broker_url),
+                redact_urls(str(error)),
+            )
 
     thread = threading.Thread(target=probe, daemon=True, name="ltlnav-broker-probe")
     thread.start()

@@ -35,6 +35,7 @@ from service.db import make_engine
 from service.jobs.celery_app import QUEUE, LtlnavCelery, is_sqla
 from service.jobs.common import Dispatch, database_for
 from service.models import MissionStatus
+from service.redact import redact_urls
 from service.settings import Settings
 
 log = logging.getLogger(__name__)
@@ -113,7 +114,7 @@ def queue_size(app: Celery) -> int | None:
             declared = connection.default_channel.queue_declare(queue=QUEUE, passive=False)
             return int(declared.message_count)
     except Exception as error:
-        log.warning("cannot read the broker queue size: %s", error)
+        log.warning("cannot read the broker queue size: %s", redact_urls(str(error)))
         return None
 
 
