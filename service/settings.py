@@ -120,6 +120,20 @@ class Settings(BaseSettings):
     max_attempts: int = Field(default=5, ge=1)
     """A job started this many times without finishing (killed workers, time limits) fails."""
 
+    quota_active_missions: int = Field(default=4, ge=0)
+    """Missions one API key may have queued or running (planning, training, evaluating) at
+    once; one more is refused with 429 until one ends. A 2-core machine trains two sub-tasks
+    at a time, so four missions already queue for a while. 0: no limit. The open API (no
+    keys) counts as one key."""
+
+    quota_submissions_per_minute: int = Field(default=10, ge=0)
+    """Missions one API key may submit in any 60 seconds (429 with ``Retry-After`` beyond):
+    a runaway client is stopped before it floods the queue of the workers. 0: no limit."""
+
+    health_probe_seconds: float = Field(default=5.0, gt=0)
+    """How often the API probes the database and the broker for ``/healthz``, off the request
+    path: a health check reads the last result and opens no connection."""
+
     @property
     def soft_time_limit(self) -> float:
         """The soft time limit in effect (see ``task_soft_time_limit``)."""

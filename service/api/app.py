@@ -67,9 +67,11 @@ def create_app(settings: Settings | None = None, enqueue: Enqueue | None = None)
             log.warning(OPEN_API_WARNING)
         if celery_enqueue:
             await warm_up_enqueue()
+        services.health.start()
         try:
             yield
         finally:
+            await run_in_threadpool(services.health.stop)
             services.database.dispose()
 
     app = FastAPI(

@@ -1,8 +1,9 @@
 """What the routes depend on, as ``Annotated`` parameter types (FastAPI dependencies).
 
-``ServicesDep`` is the app's settings, database, enqueue and examples; ``Caller`` the API key
-of the request (missions are scoped by it); ``SessionDep`` one database session per request;
-``OwnedMission`` the caller's mission named by the path's ``mission_id``."""
+``ServicesDep`` is the app's settings, database, enqueue, examples and health monitor;
+``Caller`` the API key of the request (missions are scoped by it); ``SessionDep`` one database
+session per request; ``OwnedMission`` the caller's mission named by the path's
+``mission_id``."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from sqlalchemy.orm import Session
 
 from service import repository as repo
 from service.api.examples import ExampleCatalogue
+from service.api.health import HealthMonitor
 from service.db import Database
 from service.models import Mission
 from service.settings import Settings
@@ -34,9 +36,11 @@ class Services:
     database: Database
     enqueue: Enqueue
     examples: ExampleCatalogue = field(init=False)
+    health: HealthMonitor = field(init=False)
 
     def __post_init__(self) -> None:
         self.examples = ExampleCatalogue(self.settings.examples_dir)
+        self.health = HealthMonitor(self.settings, self.database)
 
 
 def services(request: Request) -> Services:

@@ -284,7 +284,9 @@ def test_open_api_warns_at_start_up(
 
 
 def test_healthz(api: Api, monkeypatch: pytest.MonkeyPatch) -> None:
+    monitor = api.app.state.services.health  # /healthz reads its last probe
     monkeypatch.setattr(health, "broker_state", lambda settings: ("ok", None))
+    monitor.refresh()
     ok = api.http.get("/healthz")
     assert ok.status_code == 200
     assert ok.json() == {
@@ -296,6 +298,7 @@ def test_healthz(api: Api, monkeypatch: pytest.MonkeyPatch) -> None:
         "problems": {},
     }
     monkeypatch.setattr(health, "broker_state", lambda settings: ("down", "no answer"))
+    monitor.refresh()
     down = api.http.get("/healthz")
     assert down.status_code == 503
     assert (down.json()["broker"], down.json()["problems"]) == ("down", {"broker": "no answer"})
