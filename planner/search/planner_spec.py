@@ -45,8 +45,9 @@ class PlannerSpec(BaseModel):
         DEFAULT_REFINE_ITERATIONS,
         ge=0,
         description="Anytime budget spent improving the lasso after the first one is found, in "
-        "iterations of the prefix tree (each suffix tree grows as many): the plan depends only on "
-        "the mission and the seed, not on the machine or its load (0: stop at the first lasso).",
+        "iterations of the prefix tree (the suffix trees then restart from its roadmap): the plan "
+        "depends only on the mission and the seed, not on the machine or its load (0: stop at "
+        "the first lasso).",
     )
     refine_seconds: float | None = Field(
         None,
