@@ -1,8 +1,5 @@
 """stable-baselines3 agents of a training job: built from the training section, restored from a
-checkpoint or a finished job, saved as checkpoints, and the best evaluated policy kept.
-
-Checkpoint layout (``CheckpointCallback``'s): ``model_<steps>_steps.zip`` and
-``model_replay_buffer_<steps>_steps.pkl`` in a job's ``checkpoints/`` folder.
+checkpoint (``workers.checkpoints``) or a finished job, and the best evaluated policy kept.
 """
 
 from __future__ import annotations
@@ -21,7 +18,8 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from planner.errors import LtlnavError
-from workers.callbacks import ResumableEvalCallback, checkpoints
+from workers.callbacks import ResumableEvalCallback
+from workers.checkpoints import checkpoints
 from workers.residual import zero_output_layer
 from workers.training_spec import TrainingSpec
 
@@ -123,14 +121,3 @@ def keep_best_policy(
     if best is None or last is None or best[1] <= last or path is None or not path.is_file():
         return model, None
     return ALGORITHMS[training.algorithm].load(path, env=env, device="cpu"), best[0]
-
-
-def save_checkpoint(model: BaseAlgorithm, folder: Path, steps: int) -> Path:
-    """Save model (and replay buffer) as the checkpoint of ``steps``, as CheckpointCallback
-    does; the model's path."""
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"model_{steps}_steps.zip"
-    model.save(path)
-    if isinstance(model, OffPolicyAlgorithm):
-        model.save_replay_buffer(folder / f"model_replay_buffer_{steps}_steps.pkl")
-    return path

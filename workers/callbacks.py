@@ -8,6 +8,7 @@ driver hears goes through ``workers.hooks.TrainingHooks``.
 from __future__ import annotations
 
 import json
+import os
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -15,8 +16,10 @@ from typing import Any
 
 import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
+from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 
+from workers.atomic import save_with, write_json
+from workers.checkpoints import prune_checkpoints, save_checkpoint
 from workers.evaluation import SubtaskEvaluation
 from workers.hooks import CurvePoint, TrainingHooks
 
@@ -39,6 +42,13 @@ class ResumableEvalCallback(EvalCallback):
         **kwargs: Any,
     ) -> None:
         super().__init__(*args, **kwargs)
+        self.history: Path | None = None
+        """The evaluations file (``evaluations.npz`` in ``log_path``); SB3 writes each new
+        version beside it (``.partial``), renamed over it once this attempt may write."""
+        if self.log_path is not None:
+            self.history = Path(self.log_path + ".npz")
+            self.log_path = self.log_path + ".partial"
+        self.fenced = False
         self.best_path = best_path
         """Where the policy of the best evaluation so far is kept (None: not kept)."""
         self.best: tuple[int, float] | None = None
@@ -55,6 +65,8 @@ class ResumableEvalCallback(EvalCallback):
         rate = self.last_success_rate
         if len(self.evaluations_successes) > evaluations:
             assert rate is not None
+            if not self._keep_history():
+                return False
             steps = int(self.num_timesteps)
             returns = np.asarray(self.evaluations_results[-1], dtype=float)
             mean_return = float(np.mean(returns)) if returns.size else None
@@ -62,15 +74,30 @@ class ResumableEvalCallback(EvalCallback):
             self.offer(self.model, steps, rate)
         return go_on
 
+    def _keep_history(self) -> bool:
+        """Rename SB3's new evaluations file over the history if this attempt may still write
+        (else drop it, set ``fenced`` and return False: training stops)."""
+        if self.history is None or self.log_path is None:
+            return True
+        partial = Path(self.log_path + ".npz")
+        if not self.hooks.may_write():
+            partial.unlink(missing_ok=True)
+            self.fenced = True
+            return False
+        if partial.is_file():
+            os.replace(partial, self.history)
+        return True
+
     def offer(self, model: BaseAlgorithm, steps: int, rate: float) -> None:
         """Keep ``model`` (evaluated at ``rate`` after ``steps``) if it beats the kept one."""
         if self.best_path is None or (self.best is not None and rate <= self.best[1]):
             return
+        if not self.hooks.may_write():
+            self.fenced = True
+            return
         self.best = (steps, rate)
-        model.save(self.best_path)
-        self.best_path.with_suffix(".json").write_text(
-            json.dumps({"steps": steps, "success_rate": rate})
-        )
+        save_with(self.best_path, model.save)
+        write_json(self.best_path.with_suffix(".json"), {"steps": steps, "success_rate": rate})
 
     def restore(self, upto: int) -> None:
         """Load the earlier evaluations of ``log_path`` up to step ``upto`` (if any), and the
@@ -81,11 +108,8 @@ class ResumableEvalCallback(EvalCallback):
                 doc = json.loads(record.read_text())
                 if int(doc["steps"]) <= upto:
                     self.best = (int(doc["steps"]), float(doc["success_rate"]))
-        if self.log_path is None:
-            return
-        path = Path(self.log_path)
-        path = path if path.suffix == ".npz" else path.with_name(path.name + ".npz")
-        if not path.is_file():
+        path = self.history
+        if path is None or not path.is_file():
             return
         with np.load(path) as data:
             steps = data["timesteps"].tolist()
@@ -199,52 +223,25 @@ class ReportProgress(BaseCallback):
         self.on_progress(self.num_timesteps, self.evaluation.last_success_rate, self.total)
 
 
-def checkpoint_steps(path: Path) -> int | None:
-    """The step count in a checkpoint file name ``model_<steps>_steps.zip`` (None otherwise)."""
-    parts = path.stem.split("_")
-    if len(parts) == 3 and parts[0] == "model" and parts[2] == "steps" and parts[1].isdigit():
-        return int(parts[1])
-    return None
+class ReportedCheckpoints(BaseCallback):
+    """A checkpoint (model and replay buffer, ``workers.checkpoints``) every ``every`` steps,
+    told to ``hooks.checkpoint``; when ``hooks.may_write()`` says the job is no longer this
+    attempt's, training stops instead and ``fenced`` is set."""
 
-
-def checkpoints(folder: Path) -> list[tuple[Path, Path | None, int]]:
-    """Every ``(model, replay buffer or None, steps)`` checkpoint in ``folder``, newest first."""
-    found: list[tuple[int, Path]] = []
-    for path in folder.glob("model_*_steps.zip") if folder.is_dir() else ():
-        steps = checkpoint_steps(path)
-        if steps is not None:
-            found.append((steps, path))
-    out: list[tuple[Path, Path | None, int]] = []
-    for steps, model in sorted(found, reverse=True):
-        buffer = folder / f"model_replay_buffer_{steps}_steps.pkl"
-        out.append((model, buffer if buffer.is_file() else None, steps))
-    return out
-
-
-def prune_checkpoints(folder: Path, keep: int = 2) -> None:
-    """Delete all but the newest ``keep`` checkpoints (replay buffers are large)."""
-    found = sorted(
-        (s, p) for p in folder.glob("model_*_steps.zip") if (s := checkpoint_steps(p)) is not None
-    )
-    for steps, path in found[:-keep]:
-        path.unlink(missing_ok=True)
-        (folder / f"model_replay_buffer_{steps}_steps.pkl").unlink(missing_ok=True)
-
-
-class ReportedCheckpoints(CheckpointCallback):
-    """``CheckpointCallback`` (model and replay buffer every ``save_freq`` steps) that tells
-    ``hooks.checkpoint`` of each checkpoint it saved."""
-
-    def __init__(self, save_freq: int, folder: Path, hooks: TrainingHooks) -> None:
-        super().__init__(save_freq, str(folder), name_prefix="model", save_replay_buffer=True)
-        self.hooks = hooks
+    def __init__(self, every: int, folder: Path, hooks: TrainingHooks) -> None:
+        super().__init__()
+        self.every, self.folder, self.hooks = every, folder, hooks
+        self.fenced = False
 
     def _on_step(self) -> bool:
-        go_on = super()._on_step()
-        if self.n_calls % self.save_freq == 0:
-            path = Path(self._checkpoint_path(extension="zip"))
-            self.hooks.checkpoint(int(self.num_timesteps), path)
-        return go_on
+        if self.n_calls % self.every != 0:
+            return True
+        if not self.hooks.may_write():
+            self.fenced = True
+            return False
+        steps = int(self.num_timesteps)
+        self.hooks.checkpoint(steps, save_checkpoint(self.model, self.folder, steps))
+        return True
 
 
 class PruneCheckpoints(BaseCallback):

@@ -42,3 +42,9 @@ class TrainingHooks:
     def should_stop(self) -> bool:
         """Asked about twice a second: True stops the job after a checkpoint (cancelled)."""
         return False
+
+    def may_write(self) -> bool:
+        """Asked right before the job writes a file into its folder (a checkpoint, its best
+        policy, its result): False means another attempt owns the job now, and this one stops
+        without writing (its result is ``cancelled``)."""
+        return True

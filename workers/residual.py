@@ -20,6 +20,7 @@ from pathlib import Path
 import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
 
+from workers.atomic import write_json
 from workers.evaluation import SubtaskEvaluation
 
 START_RECORD = "start_check.json"
@@ -61,7 +62,7 @@ def start_check(
     """``quick()`` (a periodic evaluation's episodes), then ``confirm()`` (the final
     evaluation's) if the quick one reaches ``target``; the rate is kept in ``folder``."""
     first = quick()
-    (folder / START_RECORD).write_text(json.dumps(first.to_json()))
+    write_json(folder / START_RECORD, first.to_json())
     rate = first.success_rate
     if rate < target:
         return StartCheck(rate, None)

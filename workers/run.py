@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import time
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,6 +29,7 @@ from planner.decompose import lasso_stages
 from planner.errors import PlanningError
 from planner.plan import MissionPlan, plan_mission, verify_plan
 from planner.serialize import plan_from_dict, plan_to_dict
+from workers.atomic import write_json
 from workers.evaluation import MissionEvaluation, rollout_mission, stage_policies
 from workers.handover_repair import (
     RepairRound,
@@ -220,7 +222,7 @@ class MissionRun:
             "results": [r.to_json() for r in results],
             "mission_evaluation": evaluation.to_json(),
         }
-        (self.folder / REPAIR_RECORD).write_text(json.dumps(record, indent=1))
+        write_json(self.folder / REPAIR_RECORD, record, durable=True)
         seeds = [r.seed for r in results]
         bundle = write_bundle(
             self.folder / "bundle.zip", self.mission, self.plan, results, evaluation, seeds
@@ -239,16 +241,30 @@ def stored_or_new_plan(mission: MissionSpec, folder: Path) -> MissionPlan:
     (training options aside), else planned, verified and stored there."""
     stored = folder / PLAN_FILE
     planning = mission.model_dump(mode="json", exclude={"training"})
-    if stored.is_file():
-        saved = json.loads(stored.read_text())
-        if saved.get("mission") == planning:
+    saved = _read_plan_file(stored)
+    if saved is not None and saved.get("mission") == planning:
+        try:
             return plan_from_dict(saved["plan"])
+        except (KeyError, TypeError, ValueError) as error:
+            warnings.warn(f"planning anew: {stored} holds no usable plan ({error!r})", stacklevel=2)
     world = mission.build_world()
     radius = mission.robot.radius
     plan = plan_mission(world, mission.task, mission.robot.position(), radius, mission.planner)
     problems = verify_plan(plan, world, radius)
     if problems:
         raise PlanningError("the plan failed its own check: " + "; ".join(problems))
-    folder.mkdir(parents=True, exist_ok=True)
-    stored.write_text(json.dumps({"mission": planning, "plan": plan_to_dict(plan)}))
+    write_json(stored, {"mission": planning, "plan": plan_to_dict(plan)}, durable=True, indent=None)
     return plan
+
+
+def _read_plan_file(path: Path) -> dict[str, Any] | None:
+    """``plan.json``'s document (None: no file, or one cut short or damaged, which is planned
+    anew: the plan of a mission and seed is the same every time)."""
+    if not path.is_file():
+        return None
+    try:
+        saved = json.loads(path.read_text())
+    except ValueError as error:
+        warnings.warn(f"planning anew: {path} is not valid JSON ({error})", stacklevel=2)
+        return None
+    return saved if isinstance(saved, dict) else None

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import time
+import warnings
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -32,13 +33,8 @@ from envs.factory import make_env
 from envs.nav_env import NavEnv
 from planner.geometry.pose import Pose
 from planner.plan import MissionPlan
-from workers.agents import (
-    ALGORITHMS,
-    TrainingError,
-    keep_best_policy,
-    load_agent,
-    save_checkpoint,
-)
+from workers.agents import ALGORITHMS, TrainingError, keep_best_policy, load_agent
+from workers.atomic import save_with, write_json
 from workers.callbacks import (
     PruneCheckpoints,
     ReportedCheckpoints,
@@ -46,8 +42,8 @@ from workers.callbacks import (
     ResumableEvalCallback,
     StopOnRequest,
     StopOnSuccessRate,
-    prune_checkpoints,
 )
+from workers.checkpoints import prune_checkpoints, save_checkpoint
 from workers.evaluation import SubtaskEvaluation, evaluate_subtask
 from workers.hooks import CurvePoint, TrainingHooks
 from workers.jobs import SubtaskJob
@@ -156,14 +152,21 @@ def train_subtask(
         run.close()
     result.seconds = time.monotonic() - t0
     if result.stopped != "cancelled":
-        (out / RESULT).write_text(json.dumps(result.to_json(), indent=1))
+        write_json(out / RESULT, result.to_json(), durable=True)
     return result
 
 
 def stored_result(folder: Path) -> TrainResult | None:
-    """The result a finished job left in ``folder`` (None: none)."""
+    """The result a finished job left in ``folder`` (None: none, or one that cannot be read,
+    which the job then makes again)."""
     path = folder / RESULT
-    return TrainResult.from_json(json.loads(path.read_text())) if path.is_file() else None
+    if not path.is_file():
+        return None
+    try:
+        return TrainResult.from_json(json.loads(path.read_text()))
+    except (ValueError, TypeError, KeyError) as error:
+        warnings.warn(f"ignoring unreadable {path}: {error}", stacklevel=2)
+        return None
 
 
 def _finished(result: TrainResult, training: TrainingSpec) -> bool:
@@ -257,9 +260,10 @@ class _SubtaskTraining:
             evaluation.offer(model, 0, start.success_rate)
         every = training.checkpoint_freq or training.eval_freq
         cancel = StopOnRequest(hooks.should_stop)
+        checkpointer = ReportedCheckpoints(every, self.folder, hooks)
         callbacks: list[BaseCallback] = [
             evaluation,
-            ReportedCheckpoints(every, self.folder, hooks),
+            checkpointer,
             PruneCheckpoints(self.folder, every),
             cancel,
             ReportProgress(hooks.progress, training.n_timesteps, evaluation),
@@ -270,10 +274,13 @@ class _SubtaskTraining:
         remaining = training.n_timesteps - self.resumed
         if remaining > 0 and not cancelled and not met_at_start:
             model.learn(remaining, callback=CallbackList(callbacks), reset_num_timesteps=False)
-            cancelled = cancel.stopped
+            cancelled = cancel.stopped or checkpointer.fenced or evaluation.fenced
         steps = int(model.num_timesteps)
-        hooks.checkpoint(steps, save_checkpoint(model, self.folder, steps))
-        prune_checkpoints(self.folder)
+        owned = hooks.may_write()
+        if owned:
+            hooks.checkpoint(steps, save_checkpoint(model, self.folder, steps))
+            prune_checkpoints(self.folder)
+        cancelled = cancelled or not owned
         stopped: Stopped = "budget"
         if cancelled:
             stopped = "cancelled"
@@ -291,9 +298,11 @@ class _SubtaskTraining:
         if stopped == "budget":
             model, result.policy_steps = keep_best_policy(model, evaluation, training, self.env)
             self.model = model
+        if stopped != "cancelled" and not hooks.may_write():
+            result.stopped = stopped = "cancelled"
         if stopped != "cancelled":
             final = self.out / "model.zip"
-            model.save(final)
+            save_with(final, model.save)
             confirmed = stopper.confirmed if stopped == "target" else None
             if met_at_start and start is not None:
                 confirmed = start.confirmed

@@ -9,7 +9,10 @@ only if the mission improved). Then it writes ``bundle.zip`` and the mission is 
 was judged is stored on the mission (``repairs``, and the evaluation of the results kept), so
 any worker can take the next step.
 
-The step claims the mission with a compare-and-set (training -> evaluating).
+The step claims the mission with a compare-and-set (training -> evaluating) that counts the
+attempt: an assembly that kept dying fails the mission after ``max_attempts`` with a reason
+that says so (each repair round's assembly counts anew); a transient error puts the mission
+back after a backoff.
 """
 
 from __future__ import annotations
@@ -22,8 +25,11 @@ from service.jobs.common import (
     Dispatch,
     cancel_mission,
     database_for,
+    fail_mission,
     failing,
+    gave_up,
     open_run,
+    retry_step,
     send,
 )
 from service.jobs.progress import mission_heartbeat
@@ -46,15 +52,19 @@ def assemble_step(settings: Settings, mission_id: str, dispatch: Dispatch) -> st
             return "missing"
         if mission.status in repository.FINAL_STATES:
             return "final"
-        cancelled = mission.cancel_requested
+        cancelled, last = mission.cancel_requested, mission.reason
         jobs = repository.mission_jobs(session, mission_id)
         if not cancelled and (not jobs or any(j.status != JobStatus.done for j in jobs)):
             return "waiting"
-        if not cancelled and not (
-            mission.status == MissionStatus.training
-            and repository.set_status(session, mission_id, MissionStatus.evaluating)
-        ):
-            return "busy"
+        claimed = None
+        if not cancelled:
+            claimed = repository.claim_step(
+                session,
+                mission_id,
+                MissionStatus.training,
+                MissionStatus.evaluating,
+                "assembly_attempts",
+            )
         document = mission.document
         rounds = _results_by_round(jobs)
         judged = [RepairRound.from_json(doc) for doc in mission.repairs or []]
@@ -62,8 +72,19 @@ def assemble_step(settings: Settings, mission_id: str, dispatch: Dispatch) -> st
     if cancelled:
         cancel_mission(db, mission_id)
         return "cancelled"
+    if claimed is None:
+        return "busy"
+    attempt = claimed
+    if attempt > settings.max_attempts:
+        fail_mission(db, mission_id, gave_up("assembly", attempt - 1, last))
+        return "failed"
+
+    def retry(error: BaseException) -> bool:
+        back = MissionStatus.evaluating, MissionStatus.training
+        return retry_step(settings, mission_id, back, attempt, error, dispatch.assemble)
+
     with (
-        failing(db, mission_id, "assembly"),
+        failing(db, mission_id, "assembly", retry=retry),
         mission_heartbeat(db, mission_id, settings.heartbeat_seconds),
     ):
         run = open_run(settings, mission_id, document)
@@ -102,7 +123,11 @@ def assemble_step(settings: Settings, mission_id: str, dispatch: Dispatch) -> st
             )
             repository.set_status(session, mission_id, MissionStatus.done)
         return "done"
-    return "failed"
+    with db.session() as session:  # the guard failed the mission, or put it back for later
+        ended = repository.get_mission(session, mission_id)
+        return (
+            "retrying" if ended is not None and ended.status == MissionStatus.training else "failed"
+        )
 
 
 def _start_round(

@@ -4,6 +4,7 @@ folder of a mission, its run (opened once per process), and failing a mission wi
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import socket
@@ -14,6 +15,8 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from celery.exceptions import SoftTimeLimitExceeded
+from kombu.exceptions import OperationalError as KombuOperationalError
+from sqlalchemy.exc import DBAPIError
 
 from planner.errors import LtlnavError
 from service import repository
@@ -35,14 +38,17 @@ class Dispatch(Protocol):
         """Train the sub-tasks ``indices`` of round ``repair_round`` in parallel, then
         assemble the mission."""
 
-    def train(self, mission_id: str, index: int, repair_round: int = 0) -> None:
-        """Train one job (outside a chord: it assembles when it finishes last)."""
+    def train(
+        self, mission_id: str, index: int, repair_round: int = 0, countdown: float = 0.0
+    ) -> None:
+        """Train one job (outside a chord: it assembles when it finishes last), not before
+        ``countdown`` seconds."""
 
-    def assemble(self, mission_id: str) -> None:
-        """Assemble the mission."""
+    def assemble(self, mission_id: str, countdown: float = 0.0) -> None:
+        """Assemble the mission, not before ``countdown`` seconds."""
 
-    def plan(self, mission_id: str) -> None:
-        """Plan the mission."""
+    def plan(self, mission_id: str, countdown: float = 0.0) -> None:
+        """Plan the mission, not before ``countdown`` seconds."""
 
 
 _databases: dict[str, Database] = {}
@@ -96,18 +102,82 @@ def describe(error: BaseException) -> str:
     return f"{type(error).__name__}: {error}"
 
 
+TRANSIENT_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EIO, errno.EAGAIN})
+"""``OSError`` numbers that may pass: a full disk or quota, a flaky mount."""
+
+
+def is_transient(error: BaseException) -> bool:
+    """Whether ``error`` may pass if the step runs again later: a full disk, the database or
+    the broker unreachable. Invalid missions, infeasible plans and bugs are permanent."""
+    if isinstance(error, LtlnavError):
+        return False
+    if isinstance(error, OSError) and error.errno in TRANSIENT_ERRNOS:
+        return True
+    return isinstance(error, DBAPIError | KombuOperationalError | ConnectionError | TimeoutError)
+
+
+def backoff_seconds(settings: Settings, attempts: int) -> float:
+    """The wait before attempt ``attempts + 1`` after a transient failure: doubling from
+    ``retry_backoff_seconds``, at most ``retry_backoff_max_seconds``."""
+    doubled = settings.retry_backoff_seconds * 2.0 ** max(attempts - 1, 0)
+    return float(min(doubled, settings.retry_backoff_max_seconds))
+
+
+def gave_up(step: str, attempts: int, last: str | None) -> str:
+    """The reason of a mission whose ``step`` began ``attempts`` times and never finished."""
+    why = (
+        f"; the last stopped with: {last}"
+        if last
+        else (
+            ": each time its worker process ended before it finished (killed, out of memory or "
+            "crashed)"
+        )
+    )
+    return f"{step}: gave up after {attempts} attempts{why}. LTLNAV_MAX_ATTEMPTS sets how many"
+
+
+def retry_step(
+    settings: Settings,
+    mission_id: str,
+    moves: tuple[MissionStatus, MissionStatus],
+    attempt: int,
+    error: BaseException,
+    send_again: Callable[..., None],
+) -> bool:
+    """After a transient ``error`` of a mission's step (planning or assembly), move the
+    mission back (``moves``: from, to) and send the step again after a backoff; whether it
+    was transient."""
+    if not is_transient(error):
+        return False
+    wait = backoff_seconds(settings, attempt)
+    reason = f"attempt {attempt} stopped ({describe(error)}); trying again in {wait:.0f} s"
+    with database_for(settings).session() as session:
+        if not repository.requeue_mission(session, mission_id, *moves, reason):
+            return True
+    send(lambda: send_again(mission_id, countdown=wait), mission_id)
+    return True
+
+
 @contextmanager
 def failing(
-    db: Database, mission_id: str, what: str, job: tuple[int, str] | None = None
+    db: Database,
+    mission_id: str,
+    what: str,
+    job: tuple[int, int] | None = None,
+    retry: Callable[[BaseException], bool] | None = None,
 ) -> Iterator[None]:
-    """Turn any error of the block into a ``failed`` mission (and job ``(id, worker)``, if
-    this worker still holds it) with the reason; re-raise only if that cannot be written."""
+    """Turn any error of the block into a ``failed`` mission (and job ``(id, fencing
+    token)``, if this attempt still holds it) with the reason, unless ``retry(error)`` put the
+    work back for a later attempt (it returns True then); re-raise only if nothing can be
+    written."""
     try:
         yield
     except Exception as error:
         log.exception("%s of mission %s failed", what, mission_id)
-        reason = f"{what}: {describe(error)}"
         try:
+            if retry is not None and retry(error):
+                return
+            reason = f"{what}: {describe(error)}"
             if job is not None:
                 with db.session() as session:
                     if repository.holds_job(session, job[0], job[1]):

@@ -1,8 +1,11 @@
 """The plan step of a mission: open its run (validate, plan, store ``plan.json``), store the
 plan summary, picture and job rows, then send the training of every sub-task.
 
-The step claims the mission with a compare-and-set (queued -> planning), so a redelivered or
-duplicated task does nothing; any error ends the mission ``failed`` with a reason.
+The step claims the mission with a compare-and-set (queued -> planning) that counts the
+attempt, so a redelivered or duplicated task does nothing, and a mission whose planning kept
+dying (a crash, out of memory, a kill) fails after ``max_attempts`` with a reason that says
+so. A transient error puts it back after a backoff; any other ends the mission ``failed``
+with a reason.
 """
 
 from __future__ import annotations
@@ -23,7 +26,9 @@ from service.jobs.common import (
     database_for,
     fail_mission,
     failing,
+    gave_up,
     open_run,
+    retry_step,
     send,
 )
 from service.jobs.progress import mission_heartbeat
@@ -71,19 +76,29 @@ def plan_step(settings: Settings, mission_id: str, dispatch: Dispatch) -> str:
             return "missing"
         if mission.status in repository.FINAL_STATES:
             return "final"
-        if mission.cancel_requested:
-            document = None
-        elif mission.status != MissionStatus.queued or not repository.set_status(
-            session, mission_id, MissionStatus.planning
-        ):
-            return "busy"
-        document = mission.document
-    if document is None:
+        cancelled, last, document = mission.cancel_requested, mission.reason, mission.document
+        claimed = None
+        if not cancelled:
+            claimed = repository.claim_step(
+                session, mission_id, MissionStatus.queued, MissionStatus.planning, "plan_attempts"
+            )
+    if cancelled:
         cancel_mission(db, mission_id)
         return "cancelled"
+    if claimed is None:
+        return "busy"
+    attempt = claimed
+    if attempt > settings.max_attempts:
+        fail_mission(db, mission_id, gave_up("planning", attempt - 1, last))
+        return "failed"
     indices: list[int] = []
+
+    def retry(error: BaseException) -> bool:
+        back = MissionStatus.planning, MissionStatus.queued
+        return retry_step(settings, mission_id, back, attempt, error, dispatch.plan)
+
     with (
-        failing(db, mission_id, "planning"),
+        failing(db, mission_id, "planning", retry=retry),
         mission_heartbeat(db, mission_id, settings.heartbeat_seconds),
     ):
         try:
@@ -115,8 +130,11 @@ def plan_step(settings: Settings, mission_id: str, dispatch: Dispatch) -> str:
             except repository.TransitionError:  # cancelled while planning
                 repository.cancel_queued_jobs(session, mission_id)
                 return "final"
-    if not indices:  # the guard recorded a failure
-        return "failed"
+    if not indices:  # the guard failed the mission, or put it back for later
+        with db.session() as session:
+            mission = repository.get_mission(session, mission_id)
+            again = mission is not None and mission.status == MissionStatus.queued
+        return "retrying" if again else "failed"
     send(lambda: dispatch.training(mission_id, indices), mission_id)
     return "planned"
 

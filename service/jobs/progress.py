@@ -7,7 +7,9 @@ curve points and checkpoints as soon as they come; ``should_stop`` answers from 
 background thread refreshes, so training never waits on the database. The thread also keeps
 the heartbeat going through the parts of a job without hooks (loading, the final evaluation)
 and notices when the reconciler handed the job to another worker (then the job stops and
-writes nothing more).
+writes nothing more). Every write carries the attempt's fencing token (``Job.attempts`` as
+the claim set it): rows through ``repository.holds_job`` in the same transaction, files through
+``may_write`` right before the job writes them.
 """
 
 from __future__ import annotations
@@ -72,11 +74,11 @@ class JobMonitor(TrainingHooks):
         db: Database,
         mission_id: str,
         job_id: int,
-        worker: str,
+        token: int,
         heartbeat_seconds: float,
         check_seconds: float = 0.5,
     ) -> None:
-        self.db, self.mission_id, self.job_id, self.worker = db, mission_id, job_id, worker
+        self.db, self.mission_id, self.job_id, self.token = db, mission_id, job_id, token
         self.heartbeat_seconds = heartbeat_seconds
         self.check_seconds = min(check_seconds, heartbeat_seconds)
         self.cancelled = threading.Event()
@@ -106,7 +108,7 @@ class JobMonitor(TrainingHooks):
             now = time.monotonic()
             if now - self._last_beat >= self.heartbeat_seconds:
                 self._last_beat = now
-                if not repository.holds_job(session, self.job_id, self.worker, beat=True):
+                if not repository.holds_job(session, self.job_id, self.token):
                     self.lost.set()
 
     @contextmanager
@@ -114,6 +116,20 @@ class JobMonitor(TrainingHooks):
         """Run the background thread for the block."""
         with beating(self.check_seconds, self.check):
             yield self
+
+    def may_write(self) -> bool:
+        """Whether this attempt still owns the job (its fencing token is current), asked
+        before each file the job writes. A database that cannot be asked leaves the last
+        known answer: the job goes on through an outage."""
+        if self.lost.is_set():
+            return False
+        try:
+            with self.db.session() as session:
+                if not repository.holds_job(session, self.job_id, self.token):
+                    self.lost.set()
+        except DBAPIError as error:
+            log.warning("job %d: ownership not checked (database): %s", self.job_id, error)
+        return not self.lost.is_set()
 
     def resumed(self, steps: int) -> None:
         """Curve points after the resume point will be made again: drop the stored ones (a
@@ -156,7 +172,7 @@ class JobMonitor(TrainingHooks):
         now = time.monotonic()
         try:
             with self.db.session() as session:
-                if not repository.holds_job(session, self.job_id, self.worker):
+                if not repository.holds_job(session, self.job_id, self.token):
                     self.lost.set()
                     return
                 if self._drop_after is not None:

@@ -64,14 +64,16 @@ class CeleryDispatch:
         body = self.app.signature(ASSEMBLE, args=(mission_id,), immutable=True)
         chord(header, body, app=self.app).apply_async()
 
-    def train(self, mission_id: str, index: int, repair_round: int = 0) -> None:
-        self._train(mission_id, index, repair_round).apply_async()
+    def train(
+        self, mission_id: str, index: int, repair_round: int = 0, countdown: float = 0.0
+    ) -> None:
+        self._train(mission_id, index, repair_round).apply_async(countdown=countdown or None)
 
-    def assemble(self, mission_id: str) -> None:
-        self.app.send_task(ASSEMBLE, args=(mission_id,))
+    def assemble(self, mission_id: str, countdown: float = 0.0) -> None:
+        self.app.send_task(ASSEMBLE, args=(mission_id,), countdown=countdown or None)
 
-    def plan(self, mission_id: str) -> None:
-        self.app.send_task(PLAN, args=(mission_id,))
+    def plan(self, mission_id: str, countdown: float = 0.0) -> None:
+        self.app.send_task(PLAN, args=(mission_id,), countdown=countdown or None)
 
 
 def enqueue_mission(mission_id: str, settings: Settings | None = None) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from datetime import datetime
 from typing import Any
 
 from sqlalchemy import delete, func, select, update
@@ -14,8 +15,8 @@ from service.models import (
     Evaluation,
     Job,
     JobStatus,
-    utcnow,
 )
+from service.repository.clock import db_now
 from service.repository.events import record_event
 from service.repository.missions import NotFoundError, TransitionError, locked_mission
 
@@ -78,7 +79,7 @@ def start_job(session: Session, job_id: int, worker: str) -> Job:
     job = session.get(Job, job_id, with_for_update=True)
     if job is None:
         raise NotFoundError(f"no job {job_id}")
-    now = utcnow()
+    now = db_now(session)
     job.status = JobStatus.running
     job.worker = worker
     job.attempts = Job.attempts + 1  # in SQL: two concurrent starts both count
@@ -98,8 +99,10 @@ def _job_payload(job: Job, status: str, **more: Any) -> dict[str, Any]:
 
 def claim_job(session: Session, job_id: int, worker: str) -> Job | None:
     """Start a queued job on ``worker`` (as ``start_job``) if it is still queued; None when
-    another worker holds it or it has finished (a duplicate or redelivered task)."""
-    now = utcnow()
+    another worker holds it or it has finished (a duplicate or redelivered task). The claim
+    counts an attempt in the same compare-and-set: the returned job's ``attempts`` is this
+    attempt's fencing token (``holds_job``)."""
+    now = db_now(session)
     outcome = session.execute(
         update(Job)
         .where(Job.id == job_id, Job.status == JobStatus.queued)
@@ -121,24 +124,42 @@ def claim_job(session: Session, job_id: int, worker: str) -> Job | None:
     return job
 
 
-def holds_job(session: Session, job_id: int, worker: str, beat: bool = False) -> bool:
-    """Whether ``worker`` still runs the job (the reconciler did not hand it to another); with
-    ``beat`` its heartbeat is refreshed in the same statement."""
-    condition = (Job.id == job_id, Job.status == JobStatus.running, Job.worker == worker)
-    if beat:
-        outcome = session.execute(
-            update(Job)
-            .where(*condition)
-            .values(heartbeat_at=utcnow())
-            .execution_options(synchronize_session=False)
-        )
-        return getattr(outcome, "rowcount", 0) == 1
-    return session.scalar(select(func.count()).select_from(Job).where(*condition)) == 1
+def holds_job(session: Session, job_id: int, token: int) -> bool:
+    """Whether the attempt with fencing ``token`` still runs the job (no later claim, no
+    reclaim by the reconciler). It refreshes the heartbeat in the same UPDATE, which also
+    locks the row for the rest of the transaction: a write made after a True in the same
+    transaction cannot interleave with a reclaim."""
+    outcome = session.execute(
+        update(Job)
+        .where(Job.id == job_id, Job.status == JobStatus.running, Job.attempts == token)
+        .values(heartbeat_at=db_now(session))
+        .execution_options(synchronize_session=False)
+    )
+    return getattr(outcome, "rowcount", 0) == 1
+
+
+def requeue_job(
+    session: Session, job_id: int, token: int, not_before: datetime, reason: str
+) -> bool:
+    """Put the job attempt ``token`` holds back to queued, to start again not before
+    ``not_before`` (a transient failure); False when the attempt no longer holds it."""
+    outcome = session.execute(
+        update(Job)
+        .where(Job.id == job_id, Job.status == JobStatus.running, Job.attempts == token)
+        .values(status=JobStatus.queued, worker=None, not_before=not_before, reason=reason)
+        .execution_options(synchronize_session=False)
+    )
+    if getattr(outcome, "rowcount", 0) != 1:
+        return False
+    job = session.get(Job, job_id, populate_existing=True)
+    assert job is not None
+    record_event(session, job.mission_id, "job", _job_payload(job, "queued", reason=reason))
+    return True
 
 
 def heartbeat(session: Session, job_id: int) -> None:
     """Refresh a job's heartbeat (one UPDATE)."""
-    session.execute(update(Job).where(Job.id == job_id).values(heartbeat_at=utcnow()))
+    session.execute(update(Job).where(Job.id == job_id).values(heartbeat_at=db_now(session)))
 
 
 def record_progress(
@@ -153,7 +174,7 @@ def record_progress(
     values: dict[str, Any] = {
         "steps_done": steps_done,
         "eta_seconds": eta_seconds,
-        "heartbeat_at": utcnow(),
+        "heartbeat_at": db_now(session),
     }
     if success_rate is not None:
         values["success_rate"] = success_rate
@@ -193,7 +214,7 @@ def finish_job(
     job.status = status
     job.result = result
     job.reason = reason
-    job.finished_at = utcnow()
+    job.finished_at = db_now(session)
     if result is not None and "steps" in result:
         job.steps_done = int(result["steps"])
     session.flush()

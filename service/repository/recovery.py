@@ -15,8 +15,8 @@ from service.models import (
     JobStatus,
     Mission,
     MissionStatus,
-    utcnow,
 )
+from service.repository.clock import db_now
 from service.repository.events import record_event
 from service.repository.jobs import cancel_queued_jobs
 from service.repository.missions import FINAL_STATES, TransitionError, set_status
@@ -26,7 +26,7 @@ def stale_jobs(
     session: Session, stale_after_seconds: float, now: datetime | None = None
 ) -> list[Job]:
     """Running jobs whose heartbeat is older than ``stale_after_seconds`` (dead workers)."""
-    cutoff = (now or utcnow()) - timedelta(seconds=stale_after_seconds)
+    cutoff = (now or db_now(session)) - timedelta(seconds=stale_after_seconds)
     query = (
         select(Job)
         .where(Job.status == JobStatus.running, Job.heartbeat_at < cutoff)
@@ -40,7 +40,7 @@ def reclaim_stale_jobs(
 ) -> list[Job]:
     """Put stale jobs back to queued, each claimed by a conditional UPDATE so that of two
     reconcilers only one re-enqueues a job. Returns the jobs this call claimed."""
-    cutoff = (now or utcnow()) - timedelta(seconds=stale_after_seconds)
+    cutoff = (now or db_now(session)) - timedelta(seconds=stale_after_seconds)
     claimed: list[Job] = []
     for job in stale_jobs(session, stale_after_seconds, now):
         outcome = session.execute(
@@ -65,7 +65,7 @@ def reclaim_stale_jobs(
 def missions_ready_to_assemble(session: Session, idle_seconds: float) -> list[Mission]:
     """Missions still training whose jobs are all done, the last more than ``idle_seconds``
     ago: their chord callback was lost; assemble them from database state."""
-    cutoff = utcnow() - timedelta(seconds=idle_seconds)
+    cutoff = db_now(session) - timedelta(seconds=idle_seconds)
     jobs = select(Job.id).where(Job.mission_id == Mission.id)
     unfinished = jobs.where(Job.status != JobStatus.done)
     recent = jobs.where(Job.finished_at >= cutoff)
@@ -87,7 +87,7 @@ def _claim_mission(
 ) -> bool:
     """Compare-and-set on (status, updated_at): of several reconcilers one wins. Moves the
     mission back to ``to`` when given (a reconcile-only move, not in ``TRANSITIONS``)."""
-    values: dict[str, Any] = {"updated_at": utcnow()}
+    values: dict[str, Any] = {"updated_at": db_now(session)}
     if to is not None:
         values["status"] = to
     outcome = session.execute(
@@ -110,7 +110,7 @@ def _claim_mission(
 
 
 def _older(session: Session, status: MissionStatus, seconds: float) -> list[Mission]:
-    cutoff = utcnow() - timedelta(seconds=seconds)
+    cutoff = db_now(session) - timedelta(seconds=seconds)
     query = select(Mission).where(Mission.status == status, Mission.updated_at < cutoff)
     return list(session.scalars(query.order_by(Mission.updated_at)))
 
@@ -144,7 +144,7 @@ def claim_queued_missions(session: Session, older_than_seconds: float) -> list[M
 def claim_assemblies(session: Session, idle_seconds: float) -> list[Mission]:
     """``missions_ready_to_assemble`` untouched for ``idle_seconds``, each claimed for one
     reconciler (as above): sent once per ``idle_seconds`` at most."""
-    cutoff = utcnow() - timedelta(seconds=idle_seconds)
+    cutoff = db_now(session) - timedelta(seconds=idle_seconds)
     return [
         m
         for m in missions_ready_to_assemble(session, idle_seconds)
@@ -155,7 +155,8 @@ def claim_assemblies(session: Session, idle_seconds: float) -> list[Mission]:
 def claim_queued_jobs(session: Session, older_than_seconds: float) -> list[Job]:
     """Queued jobs of training missions, neither the mission nor the job touched for
     ``older_than_seconds``; each claimed by refreshing its ``heartbeat_at``."""
-    cutoff = utcnow() - timedelta(seconds=older_than_seconds)
+    age = timedelta(seconds=older_than_seconds)
+    cutoff = db_now(session) - age
     query = (
         select(Job)
         .join(Mission, Mission.id == Job.mission_id)
@@ -164,6 +165,7 @@ def claim_queued_jobs(session: Session, older_than_seconds: float) -> list[Job]:
             Mission.status == MissionStatus.training,
             Mission.updated_at < cutoff,
             or_(Job.heartbeat_at.is_(None), Job.heartbeat_at < cutoff),
+            or_(Job.not_before.is_(None), Job.not_before <= cutoff + age),
         )
         .order_by(Job.id)
     )
@@ -174,7 +176,7 @@ def claim_queued_jobs(session: Session, older_than_seconds: float) -> list[Job]:
         outcome = session.execute(
             update(Job)
             .where(Job.id == job.id, Job.status == JobStatus.queued, same)
-            .values(heartbeat_at=utcnow())
+            .values(heartbeat_at=db_now(session))
             .execution_options(synchronize_session=False)
         )
         if getattr(outcome, "rowcount", 0) == 1:

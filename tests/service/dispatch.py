@@ -16,12 +16,17 @@ class Recorder:
         entry: tuple[Any, ...] = ("training", mission_id, list(indices))
         self.sent.append((*entry, repair_round) if repair_round else entry)
 
-    def train(self, mission_id: str, index: int, repair_round: int = 0) -> None:
+    def train(
+        self, mission_id: str, index: int, repair_round: int = 0, countdown: float = 0.0
+    ) -> None:
         entry: tuple[Any, ...] = ("train", mission_id, index)
-        self.sent.append((*entry, repair_round) if repair_round else entry)
+        entry = (*entry, repair_round) if repair_round else entry
+        self.sent.append((*entry, countdown) if countdown else entry)
 
-    def assemble(self, mission_id: str) -> None:
-        self.sent.append(("assemble", mission_id))
+    def assemble(self, mission_id: str, countdown: float = 0.0) -> None:
+        entry: tuple[Any, ...] = ("assemble", mission_id)
+        self.sent.append((*entry, countdown) if countdown else entry)
 
-    def plan(self, mission_id: str) -> None:
-        self.sent.append(("plan", mission_id))
+    def plan(self, mission_id: str, countdown: float = 0.0) -> None:
+        entry: tuple[Any, ...] = ("plan", mission_id)
+        self.sent.append((*entry, countdown) if countdown else entry)

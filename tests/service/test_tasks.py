@@ -121,23 +121,41 @@ def test_an_infeasible_mission_fails_with_the_planners_reason(settings: Settings
     assert mission.reason and "unsatisfiable in this world" in mission.reason
 
 
-def test_an_unexpected_error_fails_the_mission_with_a_reason(settings: Settings) -> None:
-    doc = tiny_mission().model_dump(mode="json")
-    mission_id = submit(settings, doc)
+def test_an_unexpected_error_fails_the_mission_with_a_reason(
+    settings: Settings, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    mission_id = submit(settings)
     plan_step(settings, mission_id, Recorder())
-    # the stored plan is damaged: training cannot load it
-    stored = settings.artifact_dir / mission_id / "plan.json"
-    saved = json.loads(stored.read_text())
-    saved["plan"]["subtasks"] = "garbage"
-    stored.write_text(json.dumps(saved))
-    forget_open_runs()  # as in another worker process, which reads the plan anew
+
+    def broken(*_args: Any, **_kwargs: Any) -> Any:
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr("workers.run.MissionRun.train", broken)
     assert train_step(settings, mission_id, 0, Recorder(), in_chord=True) == "failed"
     mission, jobs, _, _ = load(settings, mission_id)
     assert mission.status == MissionStatus.failed
-    assert mission.reason.startswith("sub-task 0: ")
+    assert mission.reason == "sub-task 0: RuntimeError: boom"
     assert jobs[0].status == JobStatus.failed and jobs[0].reason == mission.reason
     # the other jobs then do nothing
     assert train_step(settings, mission_id, 1, Recorder(), in_chord=True) == "final"
+
+
+@pytest.mark.parametrize("damage", ["truncated", "garbage"])
+def test_a_damaged_plan_file_is_planned_anew_to_the_same_plan(
+    settings: Settings, damage: str
+) -> None:
+    mission_id = submit(settings, tiny_mission(n_timesteps=50).model_dump(mode="json"))
+    plan_step(settings, mission_id, Recorder())
+    stored = settings.artifact_dir / mission_id / "plan.json"
+    good = json.loads(stored.read_text())
+    if damage == "truncated":  # what a kill mid-write used to leave
+        stored.write_text(stored.read_text()[: len(stored.read_text()) // 2])
+    else:
+        stored.write_text(json.dumps({**good, "plan": {**good["plan"], "subtasks": "garbage"}}))
+    forget_open_runs()  # as in another worker process, which reads the plan anew
+    with pytest.warns(UserWarning, match="planning anew"):
+        assert train_step(settings, mission_id, 0, Recorder(), in_chord=True) == "done"
+    assert json.loads(stored.read_text())["plan"]["lasso"] == good["plan"]["lasso"]
 
 
 def test_cancel_before_training_cancels_the_mission_and_its_queued_jobs(
@@ -252,16 +270,20 @@ def test_a_cancel_stops_a_repair_round(settings: Settings) -> None:
 
 def test_a_job_handed_to_another_worker_stops_writing(settings: Settings) -> None:
     mission_id, db, job = claimed_job(settings, "old-worker")
-    monitor = JobMonitor(db, mission_id, job.id, "old-worker", 0.01)
+    monitor = JobMonitor(db, mission_id, job.id, job.attempts, 0.01)
     monitor.progress(0, None, 200)
     time.sleep(0.02)
     monitor.check()
     assert not monitor.should_stop()
-    with db.session() as session:  # the reconciler gave the job to another worker
+    with db.session() as session:  # the reconciler gave the job to another worker's attempt
         session.execute(
             update(Job)
             .where(Job.id == job.id)
-            .values(worker="new-worker", heartbeat_at=utcnow() - timedelta(minutes=1))
+            .values(
+                worker="new-worker",
+                attempts=Job.attempts + 1,
+                heartbeat_at=utcnow() - timedelta(minutes=1),
+            )
         )
     time.sleep(0.02)
     monitor.check()
@@ -323,7 +345,7 @@ def test_a_database_blip_delays_progress_writes_but_loses_none(
 
     mission_id, db, job = claimed_job(settings, "me")
     path = Path(job.out_dir) / "checkpoints" / "model_100_steps.zip"
-    monitor = JobMonitor(db, mission_id, job.id, "me", 0.01)
+    monitor = JobMonitor(db, mission_id, job.id, job.attempts, 0.01)
     real = repository.record_progress, repository.record_checkpoint
 
     def down(*_args: Any, **_kwargs: Any) -> None:
@@ -362,7 +384,7 @@ def test_a_restarted_job_keeps_one_start_point(settings: Settings) -> None:
         return [(p.steps, p.episodes, p.success_rate) for p in points]
 
     def run(resumed: int, *points: CurvePoint) -> None:
-        monitor = JobMonitor(db, mission_id, job.id, "me", 0.01)
+        monitor = JobMonitor(db, mission_id, job.id, job.attempts, 0.01)
         monitor.resumed(resumed)
         for point in points:
             monitor.curve_point(point)
