@@ -11,8 +11,8 @@ with its worker. Every worker therefore runs ``reconcile_forever`` in a thread; 
 - assembles missions whose jobs are all done but which are still training (lost callback);
 - when the broker queue was empty at two passes in a row, sends again missions and jobs
   still queued for a while (their messages were lost);
-- every ``broker_cleanup_seconds``, deletes consumed rows of the SQLAlchemy broker and expired
-  results.
+- every ``broker_cleanup_seconds``, deletes consumed rows of the SQLAlchemy broker, expired
+  results, and what ``service.jobs.retention`` says has expired.
 
 Every claim is a compare-and-set in the database, so several workers reconciling at once
 send each piece of work once.
@@ -34,6 +34,7 @@ from service import repository
 from service.db import make_engine
 from service.jobs.celery_app import QUEUE, LtlnavCelery, is_sqla
 from service.jobs.common import Dispatch, database_for
+from service.jobs.retention import prune_expired
 from service.models import MissionStatus
 from service.redact import redact_urls
 from service.settings import Settings
@@ -158,6 +159,7 @@ def reconcile_forever(app: LtlnavCelery, stop: threading.Event) -> None:
                 app.backend.cleanup()
                 if removed:
                     log.info("deleted %d consumed broker messages", removed)
+                prune_expired(settings)
         except DBAPIError as error:  # database down or not migrated: no traceback each pass
             log.warning("reconciliation failed (database): %s", error.orig)
         except Exception:

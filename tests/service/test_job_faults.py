@@ -246,3 +246,32 @@ def test_a_transient_planning_error_is_retried(
     assert plan_step(settings, mission_id, Recorder()) == "planned"
     mission, _ = mission_and_jobs(settings, mission_id)
     assert mission.plan_attempts == 2 and mission.reason is None
+
+
+def test_expired_checkpoints_and_progress_events_are_deleted(settings: Settings) -> None:
+    from service.jobs.retention import prune_expired
+
+    mission_id = submit(settings, n_timesteps=100, eval_freq=50)
+    plan_step(settings, mission_id, Recorder())
+    assert train_step(settings, mission_id, 0, Recorder(), in_chord=True) == "done"
+    db = Database(settings.database_url)
+    with db.session() as session:
+        repository.set_status(session, mission_id, MissionStatus.failed, "for the test")
+    _, jobs = mission_and_jobs(settings, mission_id)
+    folder = Path(jobs[0].out_dir) / "checkpoints"
+    assert folder.is_dir()
+    assert prune_expired(settings).checkpoint_folders == 0  # not yet expired
+    with db.session() as session:
+        session.execute(
+            update(Mission)
+            .where(Mission.id == mission_id)
+            .values(updated_at=utcnow() - timedelta(days=settings.keep_failed_days + 1))
+        )
+    pruned = prune_expired(settings)
+    assert pruned.checkpoint_folders == 1 and pruned.events > 0
+    assert not folder.exists() and (folder.parent / "result.json").is_file()
+    with db.session() as session:
+        assert repository.latest_checkpoint(session, jobs[0].id) is None
+        kinds = {e.kind for e in repository.events_after(session, mission_id, 0, limit=1000)}
+        assert "progress" not in kinds and "status" in kinds
+    assert prune_expired(settings) == type(pruned)(0, 0)
