@@ -127,6 +127,7 @@ class ProductTree:
         self.reached = PointIndex(self.dim)
         """The points that carry a node: the tree grows from these."""
         self.layers: dict[int, PointIndex] = {}
+        self.roots: list[int] = []
         self.roadmap = Roadmap()
         """The segments checked valid so far (a warm start for suffix trees)."""
         self.entered = 0
@@ -165,22 +166,34 @@ class ProductTree:
         new_id = np.empty(other.npts, dtype=np.int64)
         new_id[order] = np.arange(other.npts)
         u, v, d = other.roadmap.edges()
-        cost, pred = product_shortest_paths(
-            new_id[u], new_id[v], d, self.label_ids[: self.npts], self.table.reach, 0, q
-        )
-        root = self.add_node(0, q, -1, 0.0)
-        points, states = np.nonzero(np.isfinite(cost))
-        rank = np.lexsort((states, points, cost[points, states]))
-        created = [root]
+        self.roadmap.record_all(new_id[u], new_id[v], d)
+        return [self.add_node(0, q, -1, 0.0), *self.flood()]
+
+    def flood(self) -> list[int]:
+        """Create every product node the roadmap reaches from the roots and the tree lacks,
+        each under its predecessor on a shortest product path; returns the nodes created.
+
+        The product nodes at a point appear one neighbourhood per step otherwise: a state
+        reached in one goal region would have to spread over the explored space sample by
+        sample before the tree could head for the next region."""
+        u, v, d = self.roadmap.edges()
+        if u.size == 0:
+            return []
         q_count = self.num_states
+        roots = [self.node_pt[n] * q_count + self.node_q[n] for n in self.roots]
+        cost, pred = product_shortest_paths(
+            u, v, d, self.label_ids[: self.npts], self.table.reach, roots
+        )
+        points, states = np.nonzero(np.isfinite(cost) & (self.node_at[: self.npts] < 0))
+        rank = np.lexsort((states, points, cost[points, states]))
+        created = []
         for k in rank.tolist():
             p, s = int(points[k]), int(states[k])
-            if p == 0 and s == q:
-                continue
             before = int(pred[p, s])
             parent = int(self.node_at[before // q_count, before % q_count])
-            assert parent >= 0, "Dijkstra's predecessor is cheaper, hence created first"
-            created.append(self.add_node(p, s, parent, float(cost[p, s])))
+            assert parent >= 0, "Dijkstra's predecessor is cheaper, hence exists already"
+            length = float(np.linalg.norm(self.pos[p] - self.pos[before // q_count]))
+            created.append(self.add_node(p, s, parent, float(self.cost[parent]) + length))
         return created
 
     def add_node(self, pid: int, q: int, parent: int, cost: float) -> int:
@@ -199,6 +212,8 @@ class ProductTree:
             self.reached.add(pid, self.pos[pid])
             self.entered |= self.mask[pid]
         self.node_at[pid, q] = nid
+        if parent < 0:
+            self.roots.append(nid)
         layer = self.layers.get(q)
         if layer is None:
             layer = self.layers[q] = PointIndex(self.dim)

@@ -31,6 +31,12 @@ class Roadmap:
         self._v.append(np.asarray(v, dtype=np.int64))
         self._d.append(np.asarray(d, dtype=float))
 
+    def record_all(self, u: np.ndarray, v: np.ndarray, d: np.ndarray) -> None:
+        """Edges ``u[i] - v[i]`` of lengths ``d[i]`` are valid."""
+        self._u.append(np.asarray(u, dtype=np.int64))
+        self._v.append(np.asarray(v, dtype=np.int64))
+        self._d.append(np.asarray(d, dtype=float))
+
     def edges(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(u, v, d) arrays of all the edges recorded."""
         if not self._u:
@@ -45,13 +51,13 @@ def product_shortest_paths(
     d: np.ndarray,
     labels: np.ndarray,
     reach: np.ndarray,
-    root_point: int,
-    root_state: int,
+    roots: list[int],
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Dijkstra from ``(root_point, root_state)`` over the product of an undirected roadmap
-    (edges ``u - v``, lengths ``d``) with an automaton: ``(a, q) -> (b, q')`` when ``a - b`` is an
-    edge and ``reach[labels[b], q, q']``. Returns the (points, states) arrays of costs and of
-    predecessor product indices ``point * Q + state`` (-9999 where none)."""
+    """Dijkstra from the product nodes ``roots`` (indices ``point * Q + state``) over the
+    product of an undirected roadmap (edges ``u - v``, lengths ``d``) with an automaton:
+    ``(a, q) -> (b, q')`` when ``a - b`` is an edge and ``reach[labels[b], q, q']``. Returns the
+    (points, states) arrays of costs (inf: unreachable) and of predecessor product indices
+    (negative where none)."""
     q_count = reach.shape[1]
     n_points = len(labels)
     a = np.concatenate([u, v])
@@ -64,11 +70,12 @@ def product_shortest_paths(
         cols.append(b[edge] * q_count + q2)
         weights.append(w[edge])
     size = n_points * q_count
-    cost, pred = dijkstra(
+    cost, pred, _ = dijkstra(
         _min_duplicates(rows, cols, weights, size),
         directed=True,
-        indices=root_point * q_count + root_state,
+        indices=roots,
         return_predecessors=True,
+        min_only=True,
     )
     return cost.reshape(n_points, q_count), pred.reshape(n_points, q_count)
 

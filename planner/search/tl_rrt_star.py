@@ -70,6 +70,11 @@ def default_eta(world: World) -> float:
     return world.diagonal / 20.0
 
 
+FLOOD_EVERY = 150
+"""Prefix iterations between two floods of its automaton states over its roadmap while no
+accepting state is reached."""
+
+
 class _Growth:
     """One product tree with its goal (automaton distances) and sampling policy."""
 
@@ -124,6 +129,14 @@ class _Growth:
             return self.sampler.free(), q, False
         x = self.sampler.satisfying(cubes[int(self.rng.integers(len(cubes)))])
         return (self.sampler.free(), q, False) if x is None else (x, q, True)
+
+    def flood(self) -> list[int]:
+        """Spread the tree's automaton states over its roadmap (:meth:`ProductTree.flood`);
+        returns the new nodes that reach the goal."""
+        new = self.tree.flood()
+        hits = [n for n in new if self.dist.get(self.tree.node_q[n]) == 0]
+        self.goal_nodes.extend(hits)
+        return hits
 
     def step(self) -> list[int]:
         """One biased-or-uniform RRT* iteration; returns the new nodes that reach the goal."""
@@ -181,6 +194,11 @@ class _Suffix(_Growth):
 
     def step(self) -> list[int]:
         hits = super().step()
+        self._close(hits)
+        return hits
+
+    def flood(self) -> list[int]:
+        hits = super().flood()
         self._close(hits)
         return hits
 
@@ -263,6 +281,7 @@ class _Planner:
             n for n in range(tree.num_nodes) if self.acc_dist[tree.node_q[n]] == 0
         )
         self.suffixes: list[_Suffix] = []
+        self._next_flood = FLOOD_EVERY
         self.trivial: list[int] = []
         self._tried = 0
 
@@ -327,9 +346,14 @@ class _Planner:
             if self.suffixes:
                 self._grow_suffixes(100, limit, until_closed=True)
                 if not any(s.closers for s in self.suffixes):
+                    for s in self.suffixes:
+                        s.flood()
                     self._grow_prefix(10)
             else:
                 self._grow_prefix(20, until_goal=True)
+                if self.prefix.iterations >= self._next_flood:
+                    self.prefix.flood()
+                    self._next_flood = self.prefix.iterations + FLOOD_EVERY
 
     def refine(self, seconds: float, iterations: int | None = None) -> None:
         """Anytime phase: grow the prefix tree for ``seconds`` CPU seconds, or for
