@@ -36,6 +36,7 @@ def reduce_buchi(ba: RawBuchi) -> RawBuchi:
         sim = simulation(ba)
         ba = trim(quotient(ba, sim))
         ba = trim(prune_little_brothers(ba, simulation(ba)))
+        ba = trim(restart_initial(ba, simulation(ba)))
         if (ba.num_states, _num_cubes(ba)) == size:
             return ba
 
@@ -151,6 +152,34 @@ def prune_little_brothers(ba: RawBuchi, sim: list[set[int]]) -> RawBuchi:
                 kept[target] = remaining
         edges[p] = kept
     return RawBuchi(ba.initial, set(ba.accepting), edges, list(ba.names))
+
+
+def restart_initial(ba: RawBuchi, sim: list[set[int]]) -> RawBuchi:
+    """Start in another state when the initial state is one of its copies.
+
+    An initial state without incoming transitions is visited once, so whether it accepts
+    does not matter (ltl2ba's rule for the initial state). If another state ``q`` answers
+    each transition of the initial state with one to a simulating target and the other
+    way round, both accept the same words and ``q`` can be the start. Degeneralization
+    makes such copies: ``G (a -> F b)`` starts at level 0 beside its accepting level.
+    """
+    p = ba.initial
+    if any(p in out for out in ba.edges.values()):
+        return ba
+    for q in range(ba.num_states):
+        if q != p and _answers(ba, sim, p, q) and _answers(ba, sim, q, p):
+            return RawBuchi(q, set(ba.accepting), ba.edges, list(ba.names))
+    return ba
+
+
+def _answers(ba: RawBuchi, sim: list[set[int]], p: int, q: int) -> bool:
+    """Whether ``q`` answers every transition of ``p`` with one to a simulating target."""
+    q_out = ba.edges.get(q, {})
+    for target, cubes in ba.edges.get(p, {}).items():
+        better = [c for t, cs in q_out.items() if t in sim[target] for c in cs]
+        if not all(covers(better, c) for c in cubes):
+            return False
+    return True
 
 
 def trim(ba: RawBuchi) -> RawBuchi:

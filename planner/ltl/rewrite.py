@@ -24,6 +24,7 @@ from planner.ltl.formula import (
     Release,
     Until,
     WeakUntil,
+    to_nnf,
 )
 
 
@@ -162,12 +163,13 @@ def _operands(f: Formula, kind: type[And] | type[Or]) -> list[Formula]:
     return [f]
 
 
-def _complement(f: Formula) -> Formula | None:
+def _complement(f: Formula) -> Formula:
+    """The negation of ``f`` in negation normal form, e.g. ``!(a U b) = !a R !b``."""
     if isinstance(f, Prop):
         return Not(f)
     if isinstance(f, Not):
         return f.arg
-    return None
+    return to_nnf(Not(f))
 
 
 def _junction(f: And | Or) -> Formula:
@@ -181,15 +183,51 @@ def _junction(f: And | Or) -> Formula:
                 return zero
             if sub != unit and sub not in items:
                 items.append(sub)
-    if any(_complement(x) in items for x in items):
+    if len(items) > 1 and any(_complement(x) in items for x in items):
         return zero
     items = _merge_pairs(items, kind)
+    if kind is And:
+        items = _discharge_responses(items)
     if not items:
         return unit
     out = items[0]
     for item in items[1:]:
         out = kind(out, item)
     return out
+
+
+def _discharge_responses(items: list[Formula]) -> list[Formula]:
+    """Conjuncts ``G (x | F b)`` become ``G F b`` when a conjunct ``G F a`` has ``a => !x``.
+
+    ``G F a & G (!a | F b) = G F a & G F b``: infinitely many ``a`` each answered by a
+    later ``b`` are infinitely many ``b``, and infinitely many ``b`` answer every request.
+    Applied until stable, a response chain ``G F g1 & G (g1 -> F g2) & G (g2 -> F g3) ...``
+    becomes ``G F g1 & G F g2 & G F g3 ...``. Without this, the automaton construction
+    walks every set of pending deliveries (2^(k-1) configurations, as ltl2ba does) before
+    the reduction finds them all equivalent. ``a => !x`` is checked syntactically: the
+    negation of each disjunct of ``x`` is a conjunct of ``a``.
+    """
+    changed = True
+    while changed:
+        changed = False
+        recurring = [set(_operands(_inner(x), And)) for x in items if _is_gf(x)]
+        for i, item in enumerate(items):
+            if not recurring or not isinstance(item, Globally) or not isinstance(item.arg, Or):
+                continue
+            disjuncts = _operands(item.arg, Or)
+            for event in disjuncts:
+                if not isinstance(event, Eventually):
+                    continue
+                negated = [to_nnf(Not(d)) for d in disjuncts if d is not event]
+                if any(all(n in conj for n in negated) for conj in recurring):
+                    found = _operands(_infinitely_often(event.arg), And)
+                    rest = [x for x in items[:i] + items[i + 1 :] if x not in found]
+                    items = [*rest[:i], *found, *rest[i:]]
+                    changed = True
+                    break
+            if changed:
+                break
+    return items
 
 
 def _merge_pairs(items: list[Formula], kind: type[And] | type[Or]) -> list[Formula]:
