@@ -12,6 +12,7 @@ from fastapi.staticfiles import StaticFiles
 from starlette.concurrency import run_in_threadpool
 
 from service.api import events, missions, system
+from service.api.admission import install_replay
 from service.api.body_limit import BodyLimit
 from service.api.deps import Enqueue, Services
 from service.api.errors import install_handlers
@@ -83,6 +84,7 @@ def create_app(settings: Settings | None = None, enqueue: Enqueue | None = None)
     app.state.services = services
     app.add_middleware(BodyLimit, max_body_bytes=settings.max_body_bytes)
     install_handlers(app)
+    install_replay(app)
     app.include_router(missions.router)
     app.include_router(events.router)
     app.include_router(system.router)

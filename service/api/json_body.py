@@ -1,9 +1,9 @@
 """Strict JSON bodies: a syntax error is a 400 naming its line and column.
 
 ``JsonBodyRoute`` (the route class of a router) decodes the body of its routes that take one
-with ``decode_json`` before FastAPI reads it, whatever the content type, so FastAPI validates
-the decoded value. Starlette's plain ``json.loads`` would accept NaN and UTF-16, answer an empty
-body as a missing one, and fail with a 500 on deep nesting."""
+with ``decode_json`` before FastAPI reads it (``media_type`` checked its type first), so FastAPI
+validates the decoded value. Starlette's plain ``json.loads`` would accept NaN and UTF-16,
+answer an empty body as a missing one, and fail with a 500 on deep nesting."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.routing import APIRoute
 
 from service.api.errors import JSON_INVALID, invalid
+from service.api.media_type import UNSAFE_METHODS, check_unsafe_request
 from service.api.schemas import Problem
 
 EMPTY_BODY = 'the request body is empty: send a mission document or {"example": name}'
@@ -89,16 +90,24 @@ class JsonBodyRequest(Request):
 
 
 class JsonBodyRoute(APIRoute):
-    """A route whose body, if it takes one, is decoded by ``decode_json`` up front."""
+    """A route whose body, if it takes one, is decoded by ``decode_json`` up front, and whose
+    state-changing requests must be JSON (``media_type.check_unsafe_request``: 403, 415)."""
 
     def get_route_handler(self) -> Callable[[Request], Coroutine[Any, Any, Response]]:
         handler = super().get_route_handler()
-        if self.body_field is None:
+        unsafe = bool((self.methods or set()) & UNSAFE_METHODS)
+        takes_body = self.body_field is not None
+        if not (takes_body or unsafe):
             return handler
 
         async def decoded_handler(request: Request) -> Response:
             request = JsonBodyRequest(request.scope, request.receive)
-            await request.json()
+            if unsafe:
+                # Read first (within the body limit: an oversize body is 413 whatever its
+                # type), then check its type before anything parses or authenticates it.
+                check_unsafe_request(request, await request.body())
+            if takes_body:
+                await request.json()
             return await handler(request)
 
         return decoded_handler

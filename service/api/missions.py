@@ -1,23 +1,27 @@
-"""``/missions``: submit, list, read, cancel, and fetch a mission's plan picture, learning
-curves and bundle."""
+"""``/missions``: submit, list, read, cancel, delete, and fetch a mission's plan picture,
+learning curves and bundle."""
 
 from __future__ import annotations
 
 import logging
+import shutil
 from pathlib import Path as FilePath
 from typing import Annotated
 
 from fastapi import APIRouter, HTTPException, Path, Query, status
-from fastapi.responses import FileResponse
+from fastapi.responses import FileResponse, Response
 
 from service import repository as repo
+from service.api.admission import Admitted, quota_refusal, replay_response, submitted
 from service.api.deps import Caller, OwnedMission, ServicesDep, SessionDep
 from service.api.json_body import JsonBodyRoute
 from service.api.queries import cancel_if_queued
 from service.api.schemas import (
     INVALID,
     MISSION_ERRORS,
+    QUOTA_ERRORS,
     UNAUTHORIZED,
+    UNSAFE_ERRORS,
     Curve,
     Message,
     MissionPageView,
@@ -26,8 +30,8 @@ from service.api.schemas import (
     Submitted,
 )
 from service.api.submission import ValidSubmission
-from service.api.views import curve_point, mission_links, mission_view
-from service.models import MissionStatus
+from service.api.views import curve_point, mission_view
+from service.models import JobStatus, MissionStatus
 
 log = logging.getLogger(__name__)
 
@@ -43,29 +47,56 @@ MAX_SUBTASK = 10_000
     status_code=status.HTTP_201_CREATED,
     response_model=Submitted,
     responses={
+        200: {
+            "model": Submitted,
+            "description": "A repeated Idempotency-Key: nothing new was created; the first "
+            "mission's submission answer (header Idempotent-Replayed: true).",
+        },
         **UNAUTHORIZED,
         400: {"model": Problems, "description": "The body is not JSON."},
+        **UNSAFE_ERRORS,
         413: {"model": Message, "description": "The body is larger than the limit."},
         422: {"model": Problems, "description": "The mission is invalid (field paths)."},
+        **QUOTA_ERRORS,
     },
 )
 def submit_mission(
-    api_key: Caller, submission: ValidSubmission, session: SessionDep, deps: ServicesDep
-) -> Submitted:
+    api_key: Caller,
+    idempotency_key: Admitted,
+    submission: ValidSubmission,
+    session: SessionDep,
+    deps: ServicesDep,
+) -> Submitted | Response:
     """Submit a mission document (the schema of the mission files) or ``{"example": name}``.
 
     It is validated fully (syntax, formula, world, robot) before it is stored and queued;
     planning and training happen on the workers. An infeasible mission ends ``failed`` with
-    the reason."""
+    the reason. A key's quotas (missions at once, submissions per minute) are checked first
+    (429); a repeated ``Idempotency-Key`` answers 200 with the first mission."""
     spec = submission.spec
-    mission = repo.create_mission(session, spec.name, submission.document, api_key)
+    repo.serialize_submissions(session, api_key)
+    mission = repo.create_mission(session, spec.name, submission.document, api_key, idempotency_key)
+    # Counted again after the insert, in the transaction serialize_submissions orders: a
+    # concurrent request with the same key, or one that filled the quota, is seen now.
+    if idempotency_key is not None:
+        earlier = repo.find_by_idempotency_key(
+            session, api_key, idempotency_key, other_than=mission.id
+        )
+        if earlier is not None:
+            earlier_id = earlier.id
+            session.rollback()
+            return replay_response(earlier_id)
+    refusal = quota_refusal(repo.quota_usage(session, api_key), deps.settings, api_key, adding=0)
+    if refusal is not None:
+        session.rollback()
+        raise refusal
     session.commit()  # before the enqueue: the workers must find the mission
     try:
         deps.enqueue(mission.id)
     except Exception:
         # The mission is committed and queued: the workers' reconciler enqueues it later.
         log.exception("mission %s stored but not enqueued; the reconciler will retry", mission.id)
-    return Submitted(id=mission.id, status=mission.status, links=mission_links(mission.id, []))
+    return submitted(mission.id)
 
 
 @router.get("", response_model=MissionPageView, responses={**UNAUTHORIZED, **INVALID})
@@ -125,7 +156,11 @@ def learning_curve(
     "/{mission_id}/cancel",
     status_code=status.HTTP_202_ACCEPTED,
     response_model=MissionView,
-    responses={**MISSION_ERRORS, 409: {"model": Message, "description": "Already final."}},
+    responses={
+        **MISSION_ERRORS,
+        **UNSAFE_ERRORS,
+        409: {"model": Message, "description": "Already final."},
+    },
 )
 def cancel_mission(mission: OwnedMission, session: SessionDep) -> MissionView:
     """Cooperative cancel: running jobs stop at their next check, finished checkpoints stay.
@@ -162,3 +197,48 @@ def download_bundle(mission: OwnedMission) -> FileResponse:
         log.error("mission %s: its bundle %s is missing on disk", mission.id, path)
         raise HTTPException(status.HTTP_404_NOT_FOUND, "the bundle file is missing on the server")
     return FileResponse(path, media_type="application/zip", filename=f"{mission.name}-bundle.zip")
+
+
+@router.delete(
+    "/{mission_id}",
+    status_code=status.HTTP_204_NO_CONTENT,
+    response_class=Response,
+    responses={
+        **MISSION_ERRORS,
+        **UNSAFE_ERRORS,
+        409: {"model": Message, "description": "The mission has not ended: cancel it first."},
+    },
+)
+def delete_mission(mission: OwnedMission, session: SessionDep, deps: ServicesDep) -> Response:
+    """Delete an ended mission (done, failed or cancelled): its rows (jobs, checkpoints,
+    evaluations, events) and its artifact folder (plan, models, bundle). 409 while it runs:
+    cancel it first. A repeat of its ``Idempotency-Key`` creates a new mission afterwards."""
+    mission_id = mission.id
+    if mission.status not in repo.FINAL_STATES:
+        detail = (
+            f"the mission is {mission.status.value}: cancel it first "
+            f"(POST /missions/{mission_id}/cancel), then delete it once it has ended"
+        )
+        raise HTTPException(status.HTTP_409_CONFLICT, detail)
+    if any(job.status == JobStatus.running for job in mission.jobs):
+        detail = "the mission's training jobs are still stopping: try again in a few seconds"
+        raise HTTPException(status.HTTP_409_CONFLICT, detail)
+    if not repo.delete_mission(session, mission_id):
+        detail = "the mission changed while it was being deleted: read it and try again"
+        raise HTTPException(status.HTTP_409_CONFLICT, detail)
+    session.commit()  # the rows go first: a folder without rows is only disk space
+    remove_artifacts(deps.settings.artifact_dir, mission_id)
+    return Response(status_code=status.HTTP_204_NO_CONTENT)
+
+
+def remove_artifacts(artifact_dir: FilePath, mission_id: str) -> None:
+    """Delete ``<artifact_dir>/<mission_id>`` (plan, checkpoints, models, bundle), logging
+    rather than failing: the mission's rows are already gone."""
+    root = artifact_dir.resolve()
+    folder = (root / mission_id).resolve()
+    if folder.parent != root or not folder.is_dir():
+        return
+    try:
+        shutil.rmtree(folder)
+    except OSError as error:
+        log.warning("mission %s deleted, but not its folder %s: %s", mission_id, folder, error)

@@ -196,3 +196,26 @@ MISSION_ERRORS: dict[int | str, dict[str, Any]] = {
     404: {"model": Message, "description": "No such mission for this API key."},
 }
 """The error responses of a route on one mission (``/missions/{mission_id}...``)."""
+UNSAFE_ERRORS: dict[int | str, dict[str, Any]] = {
+    403: {"model": Message, "description": "A browser sent it from another site (cross-site)."},
+    415: {
+        "model": Message,
+        "description": "A body that is not 'Content-Type: application/json' (which a web page "
+        "of another site cannot send unasked; see service/api/media_type.py).",
+    },
+}
+"""The error responses of a state-changing route (POST, DELETE)."""
+QUOTA_ERRORS: dict[int | str, dict[str, Any]] = {
+    429: {
+        "model": Message,
+        "description": "A quota of the API key is used up (missions at once, submissions per "
+        "minute); the message names the limit and its setting.",
+        "headers": {
+            "Retry-After": {
+                "description": "Seconds to wait before submitting again.",
+                "schema": {"type": "integer"},
+            }
+        },
+    },
+}
+"""The error response of a submission over a quota."""

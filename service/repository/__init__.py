@@ -5,8 +5,9 @@ not commit, so a caller can group several in one transaction. Missions are scope
 the API uses ``get_owned_mission`` / ``list_missions``; workers, which hold no key, use
 ``get_mission``. Status changes and progress also append ``Event`` rows (the SSE feed).
 
-One module per concern: ``missions``, ``jobs``, ``events`` and ``recovery`` (the reconciler's
-claims); every name is importable from ``service.repository``.
+One module per concern: ``missions``, ``jobs``, ``events``, ``quotas`` (per-key submission
+limits) and ``recovery`` (the reconciler's claims); every name is importable from
+``service.repository``.
 """
 
 from __future__ import annotations
@@ -41,6 +42,8 @@ from service.repository.missions import (
     TransitionError,
     cancel_requested,
     create_mission,
+    delete_mission,
+    find_by_idempotency_key,
     get_mission,
     get_owned_mission,
     halted,
@@ -54,6 +57,12 @@ from service.repository.missions import (
     set_status,
     touch_mission,
 )
+from service.repository.quotas import (
+    ACTIVE_STATES,
+    QuotaUsage,
+    quota_usage,
+    serialize_submissions,
+)
 from service.repository.recovery import (
     cancel_idle_missions,
     claim_assemblies,
@@ -66,11 +75,13 @@ from service.repository.recovery import (
 )
 
 __all__ = [
+    "ACTIVE_STATES",
     "FINAL_STATES",
     "TRANSITIONS",
     "MissionPage",
     "NewJob",
     "NotFoundError",
+    "QuotaUsage",
     "TransitionError",
     "cancel_idle_missions",
     "cancel_queued_jobs",
@@ -81,8 +92,10 @@ __all__ = [
     "claim_queued_missions",
     "create_jobs",
     "create_mission",
+    "delete_mission",
     "drop_evaluations_after",
     "events_after",
+    "find_by_idempotency_key",
     "finish_job",
     "get_job",
     "get_mission",
@@ -96,6 +109,7 @@ __all__ = [
     "list_missions",
     "mission_jobs",
     "missions_ready_to_assemble",
+    "quota_usage",
     "reclaim_stale_jobs",
     "reclaim_stalled_missions",
     "record_checkpoint",
@@ -103,6 +117,7 @@ __all__ = [
     "record_event",
     "record_progress",
     "request_cancel",
+    "serialize_submissions",
     "set_news",
     "set_plan",
     "set_repairs",

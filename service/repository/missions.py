@@ -6,11 +6,13 @@ import hashlib
 from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import func, select, update
+from sqlalchemy import delete, func, select, update
 from sqlalchemy.orm import Session
 
 from planner.errors import LtlnavError
 from service.models import (
+    Job,
+    JobStatus,
     Mission,
     MissionStatus,
     utcnow,
@@ -54,10 +56,17 @@ class MissionPage:
 
 
 def create_mission(
-    session: Session, name: str, document: dict[str, Any], api_key: str | None
+    session: Session,
+    name: str,
+    document: dict[str, Any],
+    api_key: str | None,
+    idempotency_key: str | None = None,
 ) -> Mission:
-    """A new queued mission owned by ``api_key`` (None: the open API)."""
-    mission = Mission(name=name, document=document, owner=hash_key(api_key))
+    """A new queued mission owned by ``api_key`` (None: the open API), submitted with
+    ``idempotency_key`` (see ``find_by_idempotency_key``)."""
+    mission = Mission(
+        name=name, document=document, owner=hash_key(api_key), idempotency_key=idempotency_key
+    )
     session.add(mission)
     session.flush()
     record_event(session, mission.id, "status", {"status": mission.status.value, "reason": None})
@@ -73,6 +82,32 @@ def get_owned_mission(session: Session, mission_id: str, api_key: str | None) ->
     """The mission if ``api_key`` created it, else None (the API answers 404 alike)."""
     query = select(Mission).where(Mission.id == mission_id, _owned_by(api_key))
     return session.scalars(query).one_or_none()
+
+
+def find_by_idempotency_key(
+    session: Session, api_key: str | None, idempotency_key: str, other_than: str | None = None
+) -> Mission | None:
+    """The first mission ``api_key`` submitted with ``idempotency_key`` (oldest; besides
+    ``other_than`` when given), or None. Keys are per API key: another key's missions never
+    match, and in the open API the owner matches with IS NULL."""
+    conditions = [_owned_by(api_key), Mission.idempotency_key == idempotency_key]
+    if other_than is not None:
+        conditions.append(Mission.id != other_than)
+    query = select(Mission).where(*conditions).order_by(Mission.created_at, Mission.id).limit(1)
+    return session.scalars(query).first()
+
+
+def delete_mission(session: Session, mission_id: str) -> bool:
+    """Delete a mission that has ended (done, failed, cancelled) and has no job still
+    running, with its jobs, checkpoints, evaluations and events (the foreign keys cascade).
+    False when it is not there or not in that state. Its artifact folder is the caller's."""
+    running = select(Job.id).where(Job.mission_id == Mission.id, Job.status == JobStatus.running)
+    outcome = session.execute(
+        delete(Mission)
+        .where(Mission.id == mission_id, Mission.status.in_(FINAL_STATES), ~running.exists())
+        .execution_options(synchronize_session=False)
+    )
+    return getattr(outcome, "rowcount", 0) == 1
 
 
 def list_missions(
