@@ -118,7 +118,20 @@ class Settings(BaseSettings):
     them forever)."""
 
     max_attempts: int = Field(default=5, ge=1)
-    """A job started this many times without finishing (killed workers, time limits) fails."""
+    """A job, a planning or an assembly begun this many times without finishing (killed
+    workers, time limits, transient errors) fails, with a reason that says so."""
+
+    retry_backoff_seconds: float = Field(default=5.0, gt=0)
+    """After a transient failure (full disk, database or broker unreachable, the soft time
+    limit of a job with a checkpoint) the work waits this long, doubled at each attempt."""
+
+    retry_backoff_max_seconds: float = Field(default=300.0, gt=0)
+    """The longest wait between attempts after transient failures."""
+
+    keep_failed_days: float = Field(default=7.0, ge=0)
+    """Checkpoints (models and replay buffers) of failed and cancelled missions are deleted
+    this many days after they ended, and progress events of every ended mission too; the
+    mission, its results and ``DELETE /missions/{id}`` are unaffected."""
 
     quota_active_missions: int = Field(default=4, ge=0)
     """Missions one API key may have queued or running (planning, training, evaluating) at

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from sqlalchemy.orm import Session
+
 from service import repository
 from service.db import Database
 from service.jobs.common import (
@@ -103,12 +105,15 @@ def assemble_step(settings: Settings, mission_id: str, dispatch: Dispatch) -> st
         else:
             evaluation = run.evaluate(results)
             go_on = True
+        step = (mission_id, attempt)
         if go_on and run.needs_repair(evaluation, len(judged)):
-            outcome = _start_round(db, run, mission_id, results, evaluation, judged, dispatch)
+            outcome = _start_round(db, run, step, results, evaluation, judged, dispatch)
             if outcome is not None:
                 return outcome
         out = run.finish(results, evaluation, judged)
         with db.session() as session:
+            if not _holds(session, step):
+                return "lost"
             repository.set_result(session, mission_id, evaluation.to_json(), str(out.bundle))
             repository.set_repairs(
                 session, mission_id, evaluation.to_json(), [r.to_json() for r in judged]
@@ -130,10 +135,17 @@ def assemble_step(settings: Settings, mission_id: str, dispatch: Dispatch) -> st
         )
 
 
+def _holds(session: Session, step: tuple[str, int]) -> bool:
+    """Whether this assembly attempt (``(mission id, attempt)``) still owns the mission."""
+    mission_id, attempt = step
+    evaluating = MissionStatus.evaluating
+    return repository.holds_step(session, mission_id, evaluating, "assembly_attempts", attempt)
+
+
 def _start_round(
     db: Database,
     run: MissionRun,
-    mission_id: str,
+    step: tuple[str, int],
     results: list[TrainResult],
     evaluation: MissionEvaluation,
     judged: list[RepairRound],
@@ -161,7 +173,10 @@ def _start_round(
         f"{100 * evaluation.success_rate:.0f} %, below its target; sub-task(s) {subtasks} "
         "train on from the poses the mission's rollouts handed them over in"
     )
+    mission_id = step[0]
     with db.session() as session:
+        if not _holds(session, step):
+            return "lost"
         repository.create_jobs(session, mission_id, rows, repair_round=round_)
         repository.set_repairs(
             session, mission_id, evaluation.to_json(), [r.to_json() for r in judged]

@@ -121,6 +121,10 @@ def plan_step(settings: Settings, mission_id: str, dispatch: Dispatch) -> str:
             for job in run.jobs()
         ]
         with db.session() as session:
+            if not repository.holds_step(
+                session, mission_id, MissionStatus.planning, "plan_attempts", attempt
+            ):
+                return "lost"  # reclaimed while this attempt still ran: it writes nothing
             image_path = str(image) if image.is_file() else None
             repository.set_plan(session, mission_id, plan_summary(plan), image_path)
             rows = repository.create_jobs(session, mission_id, jobs)

@@ -12,6 +12,7 @@ limits) and ``recovery`` (the reconciler's claims); every name is importable fro
 
 from __future__ import annotations
 
+from service.repository.clock import db_now
 from service.repository.events import (
     events_after,
     record_event,
@@ -32,6 +33,7 @@ from service.repository.jobs import (
     record_checkpoint,
     record_evaluation,
     record_progress,
+    requeue_job,
     start_job,
 )
 from service.repository.missions import (
@@ -41,6 +43,7 @@ from service.repository.missions import (
     NotFoundError,
     TransitionError,
     cancel_requested,
+    claim_step,
     create_mission,
     delete_mission,
     find_by_idempotency_key,
@@ -48,8 +51,10 @@ from service.repository.missions import (
     get_owned_mission,
     halted,
     hash_key,
+    holds_step,
     list_missions,
     request_cancel,
+    requeue_mission,
     set_news,
     set_plan,
     set_repairs,
@@ -90,8 +95,10 @@ __all__ = [
     "claim_job",
     "claim_queued_jobs",
     "claim_queued_missions",
+    "claim_step",
     "create_jobs",
     "create_mission",
+    "db_now",
     "delete_mission",
     "drop_evaluations_after",
     "events_after",
@@ -104,6 +111,7 @@ __all__ = [
     "hash_key",
     "heartbeat",
     "holds_job",
+    "holds_step",
     "latest_checkpoint",
     "learning_curve",
     "list_missions",
@@ -117,6 +125,8 @@ __all__ = [
     "record_event",
     "record_progress",
     "request_cancel",
+    "requeue_job",
+    "requeue_mission",
     "serialize_submissions",
     "set_news",
     "set_plan",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 from sqlalchemy import delete, func, select, update
 from sqlalchemy.orm import Session
@@ -15,8 +15,8 @@ from service.models import (
     JobStatus,
     Mission,
     MissionStatus,
-    utcnow,
 )
+from service.repository.clock import db_now
 from service.repository.events import record_event
 
 FINAL_STATES = frozenset({MissionStatus.done, MissionStatus.failed, MissionStatus.cancelled})
@@ -164,7 +164,7 @@ def set_status(
         outcome = session.execute(
             update(Mission)
             .where(Mission.id == mission_id, Mission.status == current)
-            .values(status=status, reason=reason)
+            .values(status=status, reason=reason, updated_at=db_now(session))
         )
         if getattr(outcome, "rowcount", 0) == 1:
             record_event(session, mission_id, "status", {"status": status.value, "reason": reason})
@@ -243,6 +243,69 @@ def set_result(
     session.flush()
 
 
+def claim_step(
+    session: Session,
+    mission_id: str,
+    current: MissionStatus,
+    to: MissionStatus,
+    counter: Literal["plan_attempts", "assembly_attempts"],
+) -> int | None:
+    """Move the mission from ``current`` to ``to`` and count an attempt of the step in the
+    same compare-and-set; the attempt number, or None when the mission was not ``current``
+    (another worker has it, or it moved on)."""
+    column = getattr(Mission, counter)
+    row = session.execute(
+        update(Mission)
+        .where(Mission.id == mission_id, Mission.status == current)
+        .values({"status": to, "updated_at": db_now(session), counter: column + 1})
+        .returning(column)
+    ).one_or_none()
+    if row is None:
+        return None
+    record_event(session, mission_id, "status", {"status": to.value, "reason": None})
+    return int(row[0])
+
+
+def holds_step(
+    session: Session,
+    mission_id: str,
+    status: MissionStatus,
+    counter: Literal["plan_attempts", "assembly_attempts"],
+    attempt: int,
+) -> bool:
+    """Whether attempt ``attempt`` of the step still owns the mission (still ``status``, no
+    later attempt claimed it); refreshes its heartbeat in the same UPDATE, which locks the row
+    for the rest of the transaction, so the writes that follow are fenced."""
+    outcome = session.execute(
+        update(Mission)
+        .where(
+            Mission.id == mission_id,
+            Mission.status == status,
+            getattr(Mission, counter) == attempt,
+        )
+        .values(updated_at=db_now(session))
+        .execution_options(synchronize_session=False)
+    )
+    return getattr(outcome, "rowcount", 0) == 1
+
+
+def requeue_mission(
+    session: Session, mission_id: str, current: MissionStatus, back: MissionStatus, reason: str
+) -> bool:
+    """Put a mission whose step failed for a passing reason back to ``back`` (planning ->
+    queued, evaluating -> training) to be tried again; False when it is no longer
+    ``current``."""
+    outcome = session.execute(
+        update(Mission)
+        .where(Mission.id == mission_id, Mission.status == current)
+        .values(status=back, reason=reason, updated_at=db_now(session))
+    )
+    if getattr(outcome, "rowcount", 0) != 1:
+        return False
+    record_event(session, mission_id, "status", {"status": back.value, "reason": reason})
+    return True
+
+
 def set_repairs(
     session: Session, mission_id: str, evaluation: dict[str, Any], repairs: list[dict[str, Any]]
 ) -> None:
@@ -251,6 +314,7 @@ def set_repairs(
     mission = locked_mission(session, mission_id)
     mission.evaluation = evaluation
     mission.repairs = repairs
+    mission.assembly_attempts = 0  # the next round's assembly counts its own attempts
     session.flush()
 
 
@@ -259,6 +323,6 @@ def touch_mission(session: Session, mission_id: str) -> None:
     session.execute(
         update(Mission)
         .where(Mission.id == mission_id)
-        .values(updated_at=utcnow())
+        .values(updated_at=db_now(session))
         .execution_options(synchronize_session=False)
     )

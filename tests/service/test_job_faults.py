@@ -275,3 +275,30 @@ def test_expired_checkpoints_and_progress_events_are_deleted(settings: Settings)
         kinds = {e.kind for e in repository.events_after(session, mission_id, 0, limit=1000)}
         assert "progress" not in kinds and "status" in kinds
     assert prune_expired(settings) == type(pruned)(0, 0)
+
+
+def test_an_assembly_reclaimed_while_it_ran_writes_no_result(
+    settings: Settings, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    mission_id = submit(settings, n_timesteps=50, handover_rounds=0)
+    plan_step(settings, mission_id, Recorder())
+    for job in mission_and_jobs(settings, mission_id)[1]:
+        assert train_step(settings, mission_id, job.index, Recorder(), True) == "done"
+    import workers.run
+
+    real = workers.run.MissionRun.finish
+
+    def finish_after_a_reclaim(self: Any, *args: Any, **kwargs: Any) -> Any:
+        with Database(settings.database_url).session() as session:  # the reconciler, then
+            session.execute(  # another worker's assembly, took the mission meanwhile
+                update(Mission)
+                .where(Mission.id == mission_id)
+                .values(assembly_attempts=Mission.assembly_attempts + 1)
+            )
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(workers.run.MissionRun, "finish", finish_after_a_reclaim)
+    assert assemble_step(settings, mission_id, Recorder()) == "lost"
+    mission, _ = mission_and_jobs(settings, mission_id)
+    assert mission.status == MissionStatus.evaluating and mission.bundle_path is None
+    assert mission.evaluation is None
