@@ -35,6 +35,7 @@ from planner.errors import PlanningError
 from planner.geometry.labels import LabelOracle
 from planner.geometry.world import World
 from planner.ltl.automaton import Buchi
+from planner.search.growth import Growth, SuffixGrowth
 from planner.search.planner_spec import PlannerSpec
 from planner.search.product_sampling import Realisable, Sampler, Stepper
 from planner.search.product_tree import ProductTree
@@ -73,156 +74,6 @@ def default_eta(world: World) -> float:
 FLOOD_EVERY = 150
 """Prefix iterations between two floods of its automaton states over its roadmap while no
 accepting state is reached."""
-
-
-class _Growth:
-    """One product tree with its goal (automaton distances) and sampling policy."""
-
-    def __init__(
-        self,
-        tree: ProductTree,
-        paths: Realisable,
-        dist: dict[int, int],
-        sampler: Sampler,
-        bias: float,
-        home: np.ndarray | None = None,
-    ) -> None:
-        self.tree = tree
-        self.paths = paths
-        self.dist = dist
-        self.sampler = sampler
-        self.rng = sampler.rng
-        self.bias = bias
-        self.home = home
-        self.iterations = 0
-        self.stall = 0
-        self.goal_nodes: list[int] = []
-
-    def closest_states(self) -> tuple[int, list[int]]:
-        """Least automaton distance to the goal among the tree's states, and those states."""
-        present = [q for q in self.tree.layers if q in self.dist]
-        if not present:
-            return -1, []
-        dmin = min(self.dist[q] for q in present)
-        return dmin, sorted(q for q in present if self.dist[q] == dmin)
-
-    def _target(self) -> tuple[np.ndarray, int | None, bool]:
-        """Sampling target, the automaton layer to extend from (None: any) and whether the
-        target is goal-directed."""
-        if self.rng.random() >= self.bias:
-            return self.sampler.free(), None, False
-        dmin, states = self.closest_states()
-        if not states:
-            return self.sampler.free(), None, False
-        q = states[int(self.rng.integers(len(states)))]
-        if dmin == 0 and self.home is None:
-            return self.sampler.free(), None, False
-        # Goal-directed steps that keep failing (the layer is stuck behind an obstacle) are
-        # traded for exploration of the layer toward uniform points.
-        explore = 0.25 + 0.65 * (1.0 - math.exp(-self.stall / 40.0))
-        if self.rng.random() < explore:
-            return self.sampler.free(), q, False
-        if dmin == 0 and self.home is not None:
-            return self.sampler.near(self.home, self.tree.eta), q, True
-        cubes = self.paths.advancing_cubes(q, self.dist)
-        if not cubes:
-            return self.sampler.free(), q, False
-        x = self.sampler.satisfying(cubes[int(self.rng.integers(len(cubes)))])
-        return (self.sampler.free(), q, False) if x is None else (x, q, True)
-
-    def flood(self) -> list[int]:
-        """Spread the tree's automaton states over its roadmap (:meth:`ProductTree.flood`);
-        returns the new nodes that reach the goal."""
-        new = self.tree.flood()
-        hits = [n for n in new if self.dist.get(self.tree.node_q[n]) == 0]
-        self.goal_nodes.extend(hits)
-        return hits
-
-    def step(self) -> list[int]:
-        """One biased-or-uniform RRT* iteration; returns the new nodes that reach the goal."""
-        self.iterations += 1
-        target, layer, directed = self._target()
-        new = self.tree.extend(target, layer)
-        hits = [n for n in new if self.dist.get(self.tree.node_q[n]) == 0]
-        self.goal_nodes.extend(hits)
-        if directed:
-            self.stall = 0 if new else self.stall + 1
-        return hits
-
-
-class _Suffix(_Growth):
-    """Suffix tree rooted at prefix node ``(x*, q*)``; goal: nodes that step back to it."""
-
-    def __init__(
-        self,
-        growth: _Growth,
-        prefix_node: int,
-        stepper: Stepper,
-        sampler: Sampler,
-        bias: float,
-        seed: bool = True,
-    ) -> None:
-        prefix = growth.tree
-        self.prefix_node = prefix_node
-        self.q_star = prefix.node_q[prefix_node]
-        pid = prefix.node_pt[prefix_node]
-        self.x_star = prefix.pos[pid].copy()
-        self.mask_star = prefix.mask[pid]
-        paths = growth.paths
-        n = paths.nba.num_states
-        closing = [q for q in range(n) if self.q_star in stepper(q, self.mask_star)]
-        tree = ProductTree(
-            prefix.world,
-            prefix.oracle,
-            stepper,
-            n,
-            prefix.clearance,
-            prefix.eta,
-            prefix.gamma,
-            prefix.lift,
-        )
-        self.roadmap_points = prefix.npts
-        """Size of the prefix tree when this tree was seeded from its roadmap."""
-        if seed:
-            seeded = tree.seed_from(prefix, pid, self.q_star)
-        else:
-            tree.add_node(tree.add_point(self.x_star, self.mask_star), self.q_star, -1, 0.0)
-            seeded = []
-        super().__init__(tree, paths, paths.distances_to(closing), sampler, bias, self.x_star)
-        self.closers: list[tuple[int, float]] = []
-        self._close([n for n in seeded if self.dist.get(tree.node_q[n]) == 0])
-
-    def step(self) -> list[int]:
-        hits = super().step()
-        self._close(hits)
-        return hits
-
-    def flood(self) -> list[int]:
-        hits = super().flood()
-        self._close(hits)
-        return hits
-
-    def _close(self, hits: list[int]) -> None:
-        """Record the nodes among ``hits`` (in closing states) with a valid edge back to x*."""
-        tree = self.tree
-        pids = sorted({tree.node_pt[n] for n in hits} - {0})  # point 0 is x* itself
-        if not pids:
-            return
-        x = tree.pos[pids]
-        ok = tree.edges_ok(x, np.broadcast_to(self.x_star, x.shape))
-        length = np.linalg.norm(x - self.x_star, axis=1)
-        closing = {p: float(n) for p, n, g in zip(pids, length, ok, strict=True) if g}
-        self.closers.extend(
-            (n, closing[tree.node_pt[n]]) for n in hits if tree.node_pt[n] in closing
-        )
-
-    def best_cycle(self) -> tuple[int, float] | None:
-        """The closing node with the cheapest cycle and that cycle's length."""
-        if not self.closers:
-            return None
-        cost = self.tree.cost
-        n, length = min(self.closers, key=lambda c: cost[c[0]] + c[1])
-        return n, cost[n] + length
 
 
 class _Planner:
@@ -276,11 +127,11 @@ class _Planner:
         pid = tree.add_point(self.start, mask)
         for q in roots:
             tree.add_node(pid, q, -1, 0.0)
-        self.prefix = _Growth(tree, self.paths, self.acc_dist, self.sampler, options.bias)
+        self.prefix = Growth(tree, self.paths, self.acc_dist, self.sampler, options.bias)
         self.prefix.goal_nodes.extend(
             n for n in range(tree.num_nodes) if self.acc_dist[tree.node_q[n]] == 0
         )
-        self.suffixes: list[_Suffix] = []
+        self.suffixes: list[SuffixGrowth] = []
         self._next_flood = FLOOD_EVERY
         self.trivial: list[int] = []
         self._tried = 0
@@ -307,7 +158,9 @@ class _Planner:
             if any(np.linalg.norm(s.x_star - x) < spread for s in self.suffixes):
                 continue
             self.suffixes.append(
-                _Suffix(self.prefix, nid, self.stepper, self.sampler, self.options.bias, self.seed)
+                SuffixGrowth(
+                    self.prefix, nid, self.stepper, self.sampler, self.options.bias, self.seed
+                )
             )
 
     def _grow_prefix(self, n: int, until_goal: bool = False) -> None:
@@ -383,7 +236,7 @@ class _Planner:
         for i, s in enumerate(self.suffixes):
             if not self.seed or s.roadmap_points == self.prefix.tree.npts:
                 continue
-            fresh = _Suffix(
+            fresh = SuffixGrowth(
                 self.prefix, s.prefix_node, self.stepper, self.sampler, self.options.bias
             )
             old, new = s.best_cycle(), fresh.best_cycle()
@@ -393,7 +246,7 @@ class _Planner:
     def best_lassos(self, k: int) -> list[Lasso]:
         """The ``k`` cheapest lassos available from the current trees."""
         tree = self.prefix.tree
-        options: list[tuple[float, int, _Suffix | None]] = []
+        options: list[tuple[float, int, SuffixGrowth | None]] = []
         if self.trivial:
             nid = min(self.trivial, key=lambda n: tree.cost[n])
             options.append((self.w * tree.cost[nid], nid, None))
@@ -405,7 +258,7 @@ class _Planner:
         options.sort(key=lambda o: o[0])
         return [self._assemble(nid, s) for _, nid, s in options[:k]]
 
-    def _assemble(self, nid: int, suffix: _Suffix | None) -> Lasso:
+    def _assemble(self, nid: int, suffix: SuffixGrowth | None) -> Lasso:
         pre, pre_q = self.prefix.tree.branch(nid)
         if suffix is None:
             suf, suf_q = pre[-1:].copy(), [pre_q[-1]]
@@ -432,7 +285,7 @@ class _Planner:
             + "; ".join(reasons)
         )
 
-    def _stuck(self, growth: _Growth) -> str:
+    def _stuck(self, growth: Growth) -> str:
         """Why ``growth`` did not reach its goal: the regions it needed but never entered."""
         _, states = growth.closest_states()
         needed: set[str] = set()

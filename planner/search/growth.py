@@ -1,0 +1,169 @@
+"""The two kinds of growing tree of TL-RRT*: a tree with its goal and its sampling policy.
+
+:class:`Growth` is one product tree (:mod:`planner.search.product_tree`) with automaton distances
+to its goal states and the biased sampling of the paper: with probability ``bias`` it extends,
+from its nearest node in the automaton state closest to the goal, toward a point of the region
+whose label enables the next transition on a shortest automaton path; otherwise toward a uniform
+free point. :class:`SuffixGrowth` is the tree rooted at an accepting prefix node ``(x*, q*)``,
+started from the prefix tree's roadmap (:mod:`planner.search.roadmap`), whose goal is a node
+that steps back to ``(x*, q*)``: it records those closing nodes and the cheapest cycle.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from planner.search.product_sampling import Realisable, Sampler, Stepper
+from planner.search.product_tree import ProductTree
+
+
+class Growth:
+    """One product tree with its goal (automaton distances) and sampling policy."""
+
+    def __init__(
+        self,
+        tree: ProductTree,
+        paths: Realisable,
+        dist: dict[int, int],
+        sampler: Sampler,
+        bias: float,
+        home: np.ndarray | None = None,
+    ) -> None:
+        self.tree = tree
+        self.paths = paths
+        self.dist = dist
+        self.sampler = sampler
+        self.rng = sampler.rng
+        self.bias = bias
+        self.home = home
+        self.iterations = 0
+        self.stall = 0
+        self.goal_nodes: list[int] = []
+
+    def closest_states(self) -> tuple[int, list[int]]:
+        """Least automaton distance to the goal among the tree's states, and those states."""
+        present = [q for q in self.tree.layers if q in self.dist]
+        if not present:
+            return -1, []
+        dmin = min(self.dist[q] for q in present)
+        return dmin, sorted(q for q in present if self.dist[q] == dmin)
+
+    def _target(self) -> tuple[np.ndarray, int | None, bool]:
+        """Sampling target, the automaton layer to extend from (None: any) and whether the
+        target is goal-directed."""
+        if self.rng.random() >= self.bias:
+            return self.sampler.free(), None, False
+        dmin, states = self.closest_states()
+        if not states:
+            return self.sampler.free(), None, False
+        q = states[int(self.rng.integers(len(states)))]
+        if dmin == 0 and self.home is None:
+            return self.sampler.free(), None, False
+        # Goal-directed steps that keep failing (the layer is stuck behind an obstacle) are
+        # traded for exploration of the layer toward uniform points.
+        explore = 0.25 + 0.65 * (1.0 - math.exp(-self.stall / 40.0))
+        if self.rng.random() < explore:
+            return self.sampler.free(), q, False
+        if dmin == 0 and self.home is not None:
+            return self.sampler.near(self.home, self.tree.eta), q, True
+        cubes = self.paths.advancing_cubes(q, self.dist)
+        if not cubes:
+            return self.sampler.free(), q, False
+        x = self.sampler.satisfying(cubes[int(self.rng.integers(len(cubes)))])
+        return (self.sampler.free(), q, False) if x is None else (x, q, True)
+
+    def flood(self) -> list[int]:
+        """Spread the tree's automaton states over its roadmap (:meth:`ProductTree.flood`);
+        returns the new nodes that reach the goal."""
+        new = self.tree.flood()
+        hits = [n for n in new if self.dist.get(self.tree.node_q[n]) == 0]
+        self.goal_nodes.extend(hits)
+        return hits
+
+    def step(self) -> list[int]:
+        """One biased-or-uniform RRT* iteration; returns the new nodes that reach the goal."""
+        self.iterations += 1
+        target, layer, directed = self._target()
+        new = self.tree.extend(target, layer)
+        hits = [n for n in new if self.dist.get(self.tree.node_q[n]) == 0]
+        self.goal_nodes.extend(hits)
+        if directed:
+            self.stall = 0 if new else self.stall + 1
+        return hits
+
+
+class SuffixGrowth(Growth):
+    """Suffix tree rooted at prefix node ``(x*, q*)``; goal: nodes that step back to it."""
+
+    def __init__(
+        self,
+        growth: Growth,
+        prefix_node: int,
+        stepper: Stepper,
+        sampler: Sampler,
+        bias: float,
+        seed: bool = True,
+    ) -> None:
+        prefix = growth.tree
+        self.prefix_node = prefix_node
+        self.q_star = prefix.node_q[prefix_node]
+        pid = prefix.node_pt[prefix_node]
+        self.x_star = prefix.pos[pid].copy()
+        self.mask_star = prefix.mask[pid]
+        paths = growth.paths
+        n = paths.nba.num_states
+        closing = [q for q in range(n) if self.q_star in stepper(q, self.mask_star)]
+        tree = ProductTree(
+            prefix.world,
+            prefix.oracle,
+            stepper,
+            n,
+            prefix.clearance,
+            prefix.eta,
+            prefix.gamma,
+            prefix.lift,
+        )
+        self.roadmap_points = prefix.npts
+        """Size of the prefix tree when this tree was seeded from its roadmap."""
+        if seed:
+            seeded = tree.seed_from(prefix, pid, self.q_star)
+        else:
+            tree.add_node(tree.add_point(self.x_star, self.mask_star), self.q_star, -1, 0.0)
+            seeded = []
+        super().__init__(tree, paths, paths.distances_to(closing), sampler, bias, self.x_star)
+        self.closers: list[tuple[int, float]] = []
+        self._close([n for n in seeded if self.dist.get(tree.node_q[n]) == 0])
+
+    def step(self) -> list[int]:
+        hits = super().step()
+        self._close(hits)
+        return hits
+
+    def flood(self) -> list[int]:
+        hits = super().flood()
+        self._close(hits)
+        return hits
+
+    def _close(self, hits: list[int]) -> None:
+        """Record the nodes among ``hits`` (in closing states) with a valid edge back to x*."""
+        tree = self.tree
+        pids = sorted({tree.node_pt[n] for n in hits} - {0})  # point 0 is x* itself
+        if not pids:
+            return
+        x = tree.pos[pids]
+        ok = tree.edges_ok(x, np.broadcast_to(self.x_star, x.shape))
+        length = np.linalg.norm(x - self.x_star, axis=1)
+        closing = {p: float(n) for p, n, g in zip(pids, length, ok, strict=True) if g}
+        self.closers.extend(
+            (n, closing[tree.node_pt[n]]) for n in hits if tree.node_pt[n] in closing
+        )
+
+    def best_cycle(self) -> tuple[int, float] | None:
+        """The closing node with the cheapest cycle and that cycle's length."""
+        if not self.closers:
+            return None
+        cost = self.tree.cost
+        n, length = min(self.closers, key=lambda c: cost[c[0]] + c[1])
+        return n, cost[n] + length
