@@ -53,10 +53,6 @@ def quota_usage(session: Session, api_key: str | None, now: datetime | None = No
     recent, oldest = session.execute(
         select(func.count(), func.min(Mission.created_at)).where(owned, Mission.created_at > since)
     ).one()
-    if isinstance(oldest, str):  # SQLite's min() of a timestamp column is its text
-        oldest = datetime.fromisoformat(oldest)
-    if oldest is not None and oldest.tzinfo is None:
-        oldest = oldest.replace(tzinfo=now.tzinfo if now else utcnow().tzinfo)
     return QuotaUsage(active=int(active or 0), recent=int(recent or 0), oldest_recent=oldest)
 
 
