@@ -270,11 +270,18 @@ def serve(
         bool, typer.Option("--no-worker", help="Serve the API only (workers run elsewhere).")
     ] = False,
 ) -> None:
-    """Migrate the database, then run the API and one embedded worker until Ctrl-C."""
+    """Migrate the database, then run the API and one embedded worker until Ctrl-C. Without
+    API keys (LTLNAV_API_KEYS) only a loopback address may be bound."""
+    from service.serve import OpenExposureError, refuse_open_exposure
     from service.serve import serve as run
     from service.settings import Settings
 
     settings = Settings()
+    try:
+        refuse_open_exposure(settings, host or settings.host)
+    except OpenExposureError as error:
+        typer.echo(f"error: {error}", err=True)
+        raise typer.Exit(EXIT_BAD_INPUT) from None
     run(
         settings,
         host=host or settings.host,

@@ -1,9 +1,11 @@
 """``ltlnav serve``: the API (uvicorn) in this process and one embedded Celery worker in a
-child process, both stopped cleanly on Ctrl-C or SIGTERM."""
+child process, both stopped cleanly on Ctrl-C or SIGTERM. The open API (no keys) binds
+loopback addresses only."""
 
 from __future__ import annotations
 
 import contextlib
+import ipaddress
 import os
 import signal
 import subprocess
@@ -22,6 +24,35 @@ WORKER_GRACE_SECONDS = 20.0
 before it is shut down cold; jobs cut short resume from their checkpoints later."""
 
 Say = Callable[[str], None]
+
+
+class OpenExposureError(ValueError):
+    """The open API (no keys) asked to listen beyond this machine."""
+
+
+def is_loopback(host: str) -> bool:
+    """Whether ``host`` is reachable from this machine only: ``localhost`` or a loopback
+    address (127.0.0.0/8, ::1). The wildcards (0.0.0.0, ::) and any other name are not."""
+    name = host.strip().strip("[]").lower()
+    if name == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(name).is_loopback
+    except ValueError:
+        return False
+
+
+def refuse_open_exposure(settings: Settings, host: str) -> None:
+    """Raise ``OpenExposureError`` when the API is open (no ``LTLNAV_API_KEYS``) and ``host``
+    is not a loopback address: an open API on a network lets anyone there, and any web page a
+    user of it visits, submit and read missions."""
+    if settings.api_keys or is_loopback(host):
+        return
+    raise OpenExposureError(
+        f"refusing to serve the open API on {host!r}: with no API keys it must bind a "
+        "loopback address (127.0.0.1, the default). Set LTLNAV_API_KEYS (comma-separated "
+        "bearer tokens) to listen on other addresses, or use --host 127.0.0.1"
+    )
 
 
 def display_host(host: str) -> str:
@@ -79,6 +110,7 @@ def serve(
     signal; then stop both."""
     from service.api.app import create_app
 
+    refuse_open_exposure(settings, host)
     settings.make_dirs()
     upgrade(settings.database_url)
     app = create_app(settings)
