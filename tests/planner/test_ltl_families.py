@@ -1,0 +1,137 @@
+"""The translator on the published benchmark families (:mod:`planner.ltl.families`).
+
+Every automaton is checked against the direct lasso semantics (:func:`holds_on_lasso`),
+which builds no automaton. Sizes are compared with ltl2ba 1.1 (Gastin and Oddoux's own
+tool, built from its C sources and run here); times are generous regression guards, the
+one-second target is shown by ``bench/translator.py``.
+"""
+
+from __future__ import annotations
+
+import random
+import time
+
+import pytest
+
+from planner.ltl.families import FAMILIES, PATTERNS, response_chain, rv_counter
+from planner.ltl.formula import And, Eventually, Formula, Globally, Or, atoms, parse, to_text
+from planner.ltl.semantics import holds_on_lasso
+from planner.ltl.translate import translate
+from tests.planner.ltl_random import random_formula, random_lasso
+
+L = frozenset
+
+LTL2BA_STATES = {
+    "dac": (1, 4, 2, 4, 2, 2, 2, 5, 2, 2, 5, 8, 8, 16, 10, 1, 4, 2, 4, 2, 2, 4, 5, 4, 2, 2, 6)
+    + (3, 8, 3, 5, 5, 5, 10, 10, 5, 6, 7, 8, 12, 11, 20, 12, 35, 31, 5, 10, 4, 16, 24, 5, 10)
+    + (4, 16, 24),
+    "eh": (2, 3, 7, 2, 4, 3, 5, 2, 8, 6, 8, 4),
+    "sb": (2, 3, 3, 5, 6, 4, 7, 3, 11, 2, 1, 4, 6, 2, 2, 3, 3, 3, 4, 21, 11, 12, 12, 10, 3, 1, 2),
+}
+"""States of ltl2ba 1.1 (``ltl2ba -f``, all simplifications on) on each pattern."""
+
+LARGER_THAN_LTL2BA = {("dac", 46), ("dac", 50), ("dac", 51), ("dac", 55)}
+LARGER_THAN_LTL2BA |= {("eh", 9), ("sb", 8)}
+"""The patterns where our automaton still has more states than ltl2ba's."""
+
+PATTERN_CASES = [(name, i) for name, texts in PATTERNS.items() for i in range(1, len(texts) + 1)]
+
+
+def _check_semantics(f: Formula, rng: random.Random, words: int = 40) -> None:
+    nba = translate(f)
+    props = tuple(sorted(atoms(f))) or ("a",)
+    for _ in range(words):
+        prefix, cycle = random_lasso(rng, props, longest=5)
+        expected = holds_on_lasso(f, prefix, cycle)
+        assert nba.accepts_lasso(prefix, cycle) == expected, (to_text(f), prefix, cycle)
+
+
+@pytest.mark.parametrize(("name", "index"), PATTERN_CASES)
+def test_patterns_agree_with_semantics_and_ltl2ba_size(name: str, index: int) -> None:
+    f = parse(PATTERNS[name][index - 1])
+    _check_semantics(f, random.Random(index))
+    states = translate(f).num_states
+    if (name, index) not in LARGER_THAN_LTL2BA:
+        assert states <= LTL2BA_STATES[name][index - 1]
+
+
+@pytest.mark.parametrize(
+    ("family", "k"),
+    [("response-chain", k) for k in range(1, 6)]
+    + [("gf-and", k) for k in range(1, 5)]
+    + [("gh-r", k) for k in range(1, 4)]
+    + [("rv-counter", k) for k in range(1, 3)],
+)
+def test_parametric_families_agree_with_semantics(family: str, k: int) -> None:
+    _check_semantics(parse(FAMILIES[family](k)), random.Random(k), words=60)
+
+
+def _counter_word(n: int) -> list[frozenset[str]]:
+    """One period of the ``n``-bit counter: blocks of ``n`` bits, least significant first."""
+    word = []
+    for value in range(2**n):
+        for bit in range(n):
+            letter = {"m"} if bit == 0 else set()
+            if value >> bit & 1:
+                letter.add("b")
+            word.append(L(letter))
+    return word
+
+
+@pytest.mark.parametrize("n", [1, 2, 3])
+def test_rv_counter_accepts_the_counter_and_rejects_a_wrong_bit(n: int) -> None:
+    f = parse(rv_counter(n))
+    nba = translate(f)
+    word = _counter_word(n)
+    assert holds_on_lasso(f, [], word)
+    assert nba.accepts_lasso([], word)
+    for i in range(len(word)):
+        wrong = [*word[:i], word[i] ^ {"b"}, *word[i + 1 :]]
+        assert not holds_on_lasso(f, [], wrong)
+        assert not nba.accepts_lasso([], wrong)
+
+
+@pytest.mark.parametrize("k", range(1, 13))
+def test_response_chains_are_gf_and_sized(k: int) -> None:
+    """``G F g1`` makes every delivery recur: the chain is ``G F g1 & ... & G F gk``."""
+    chain = translate(response_chain(k))
+    assert chain.num_states == (k + 1 if k > 1 else 2)
+    goals = [L({f"g{i}"}) for i in range(1, k + 1)]
+    assert chain.accepts_lasso([L()], goals)
+    assert not chain.accepts_lasso([L()], goals[:-1] or [L()])
+
+
+def test_response_chain_of_nine_is_fast() -> None:
+    """Was over 200 s (98 s at k = 8); the bench shows under 0.1 s."""
+    start = time.perf_counter()
+    translate(response_chain(9))
+    assert time.perf_counter() - start < 10.0
+
+
+def test_a_chain_without_the_recurrence_stays_correct() -> None:
+    """No ``G F`` conjunct: the discharge rule must not fire, deliveries stay pending."""
+    f = parse("[](g1 -> <>g2) && [](g2 -> <>g3)")
+    nba = translate(f)
+    assert nba.accepts_lasso([], [L()])
+    assert not nba.accepts_lasso([L({"g1"})], [L()])
+    assert nba.accepts_lasso([L({"g1"}), L({"g2"}), L({"g3"})], [L()])
+    _check_semantics(f, random.Random(3), words=200)
+
+
+def _random_response(rng: random.Random) -> Formula:
+    """``G (x | F b)`` or ``G F a`` with small random subformulas over a, b, c."""
+    small = random_formula(rng, depth=1, allow_next=rng.random() < 0.3)
+    if rng.random() < 0.4:
+        return Globally(Eventually(small))
+    left = random_formula(rng, depth=1, allow_next=False)
+    return Globally(Or(left, Eventually(small)))
+
+
+def test_conjunctions_of_responses_and_recurrences_agree_with_semantics() -> None:
+    """The ``G F a & G (!a | F b) = G F a & G F b`` rewriting on random conjunctions."""
+    rng = random.Random(17)
+    for _ in range(150):
+        f = _random_response(rng)
+        for _ in range(rng.randint(1, 3)):
+            f = And(f, _random_response(rng))
+        _check_semantics(f, rng, words=30)
