@@ -18,6 +18,11 @@ import numpy as np
 from planner.search.product_sampling import Realisable, Sampler, Stepper
 from planner.search.product_tree import ProductTree
 
+FLOOD_EVERY = 150
+"""Iterations between two floods of a tree's automaton states over its roadmap while no lasso
+exists (at least; see :meth:`Growth.flood_if_due`)."""
+FLOOD_GROWTH = 1.2
+
 
 class Growth:
     """One product tree with its goal (automaton distances) and sampling policy."""
@@ -41,6 +46,7 @@ class Growth:
         self.iterations = 0
         self.stall = 0
         self.goal_nodes: list[int] = []
+        self.next_flood = FLOOD_EVERY
 
     def closest_states(self) -> tuple[int, list[int]]:
         """Least automaton distance to the goal among the tree's states, and those states."""
@@ -73,6 +79,17 @@ class Growth:
             return self.sampler.free(), q, False
         x = self.sampler.satisfying(cubes[int(self.rng.integers(len(cubes)))])
         return (self.sampler.free(), q, False) if x is None else (x, q, True)
+
+    def flood_if_due(self) -> list[int]:
+        """:meth:`flood` after FLOOD_EVERY iterations, or a fifth more than at the last flood
+        (a flood costs time linear in the roadmap: spaced geometrically, floods cost amortised
+        O(1) per iteration however long the search)."""
+        if self.iterations < self.next_flood:
+            return []
+        self.next_flood = max(
+            self.iterations + FLOOD_EVERY, math.ceil(self.iterations * FLOOD_GROWTH)
+        )
+        return self.flood()
 
     def flood(self) -> list[int]:
         """Spread the tree's automaton states over its roadmap (:meth:`ProductTree.flood`);

@@ -71,11 +71,6 @@ def default_eta(world: World) -> float:
     return world.diagonal / 20.0
 
 
-FLOOD_EVERY = 150
-"""Prefix iterations between two floods of its automaton states over its roadmap while no
-accepting state is reached."""
-
-
 class _Planner:
     """State of one TL-RRT* run; :meth:`run` returns the lasso or raises PlanningError."""
 
@@ -132,7 +127,6 @@ class _Planner:
             n for n in range(tree.num_nodes) if self.acc_dist[tree.node_q[n]] == 0
         )
         self.suffixes: list[SuffixGrowth] = []
-        self._next_flood = FLOOD_EVERY
         self.trivial: list[int] = []
         self._tried = 0
 
@@ -200,13 +194,11 @@ class _Planner:
                 self._grow_suffixes(100, limit, until_closed=True)
                 if not any(s.closers for s in self.suffixes):
                     for s in self.suffixes:
-                        s.flood()
+                        s.flood_if_due()
                     self._grow_prefix(10)
             else:
                 self._grow_prefix(20, until_goal=True)
-                if self.prefix.iterations >= self._next_flood:
-                    self.prefix.flood()
-                    self._next_flood = self.prefix.iterations + FLOOD_EVERY
+                self.prefix.flood_if_due()
 
     def refine(self, seconds: float, iterations: int | None = None) -> None:
         """Anytime phase: grow the prefix tree for ``seconds`` CPU seconds, or for
