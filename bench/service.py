@@ -18,6 +18,9 @@ wait, stop) and print one table.
    > 0 seen by polling every 50 ms; progress is written every ``heartbeat`` seconds) and the
    wall time to ``done``. Speed-up = wall(1) / wall(K); ideal = K while K <= sub-tasks. One
    warm-up submission (cancelled at once) goes first: the cold first POST is reported in 1.
+
+``--load`` runs the load mode instead (``bench/service_load.py``: hundreds of tiny missions
+from 10 API keys on 2 workers under 50 pollers, then the accounting; ``--load --help``).
 """
 
 from __future__ import annotations
@@ -35,8 +38,8 @@ import sys
 import tempfile
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass
+from contextlib import contextmanager, suppress
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -90,6 +93,8 @@ class Layout:
     root: Path
     redis: str | None
     postgres: str | None
+    extra: dict[str, str] = field(default_factory=dict)
+    """More ``LTLNAV_...`` settings of its processes (the load mode's keys and quotas)."""
 
     def env(self) -> dict[str, str]:
         env = {
@@ -108,14 +113,29 @@ class Layout:
             env.update(LTLNAV_BROKER_URL=self.redis, LTLNAV_RESULT_BACKEND=results)
         if self.postgres:
             env["DATABASE_URL"] = self.postgres
+        env.update(self.extra)
         return env
+
+
+_interrupted: set[int] = set()
+"""Processes ``interrupt`` already sent SIGINT (``process`` then only waits for them)."""
+
+
+def interrupt(procs: list[subprocess.Popen[bytes]]) -> None:
+    """SIGINT to every one of ``procs`` still running, at once: they shut down in parallel
+    rather than one after the other when their ``process`` contexts end."""
+    for proc in procs:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            _interrupted.add(proc.pid)
 
 
 @contextmanager
 def process(
     command: list[str], env: dict[str, str], log: Path
 ) -> Iterator[subprocess.Popen[bytes]]:
-    """Run ``command`` (its output to ``log``); SIGINT, then SIGKILL of its group, at the end."""
+    """Run ``command`` (its output to ``log``) in a session of its own; at the end SIGINT (once),
+    SIGKILL after 30 s, and SIGKILL of whatever of its group is left (pool children)."""
     with log.open("w") as out:
         proc = subprocess.Popen(
             command, env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True
@@ -123,13 +143,16 @@ def process(
     try:
         yield proc
     finally:
-        if proc.poll() is None:
+        if proc.poll() is None and proc.pid not in _interrupted:
             proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait(timeout=10)
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(timeout=10)
+        _interrupted.discard(proc.pid)
+        with suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
 
 
 @contextmanager
@@ -156,18 +179,33 @@ def api_server(layout: Layout) -> Iterator[str]:
 
 
 @contextmanager
-def worker(layout: Layout, concurrency: int) -> Iterator[None]:
-    """``ltlnav worker --concurrency K``; returns once Celery says it is ready."""
-    log = layout.root / f"worker-{concurrency}.log"
+def start_worker(
+    layout: Layout, concurrency: int, name: str | None = None
+) -> Iterator[tuple[subprocess.Popen[bytes], Path]]:
+    """``ltlnav worker --concurrency K`` started (not yet ready: see ``wait_ready``); yields
+    the process and its log. ``name`` tells the logs of several workers of a layout apart."""
+    log = layout.root / f"worker-{name or concurrency}.log"
     command = [str(LTLNAV), "worker", "--concurrency", str(concurrency)]
     with process(command, layout.env(), log) as proc:
-        deadline = time.monotonic() + 120
-        while " ready." not in log.read_text():
-            if proc.poll() is not None:
-                raise RuntimeError(f"ltlnav worker exited:\n{log.read_text()[-3000:]}")
-            if time.monotonic() > deadline:
-                raise RuntimeError(f"worker not ready in 120 s:\n{log.read_text()[-3000:]}")
-            time.sleep(0.2)
+        yield proc, log
+
+
+def wait_ready(proc: subprocess.Popen[bytes], log: Path) -> None:
+    """Return once the worker's log says Celery is ready (error after 120 s or on exit)."""
+    deadline = time.monotonic() + 120
+    while " ready." not in log.read_text():
+        if proc.poll() is not None:
+            raise RuntimeError(f"ltlnav worker exited:\n{log.read_text()[-3000:]}")
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"worker not ready in 120 s:\n{log.read_text()[-3000:]}")
+        time.sleep(0.2)
+
+
+@contextmanager
+def worker(layout: Layout, concurrency: int) -> Iterator[None]:
+    """``ltlnav worker --concurrency K``; returns once Celery says it is ready."""
+    with start_worker(layout, concurrency) as (proc, log):
+        wait_ready(proc, log)
         yield
 
 
@@ -383,6 +421,12 @@ def machine_note() -> str:
 
 
 def main() -> None:
+    if "--load" in sys.argv[1:]:
+        # The load mode lives in bench/service_load.py (its own options, see --load --help).
+        from bench.service_load import main as load_main
+
+        load_main([arg for arg in sys.argv[1:] if arg != "--load"])
+        return
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--submissions", type=int, default=200, help="POST /missions samples")
     parser.add_argument("--pollers", type=int, default=50, help="concurrent GET clients")
