@@ -17,7 +17,10 @@ from a neighbour with its cheapest parent, then rewire the neighbours through th
 Rewiring also *lifts*: a neighbour point that has no node yet in a state the new node leads to
 gets one, parented by the new node. Without it every automaton layer has to rediscover the free
 space by its own samples (a narrow door had to be found again by each state of a patrol); with
-it a new state spreads over the points the tree already holds, one neighbourhood per sample.
+it a new state spreads over the points the tree already holds, one neighbourhood per sample;
+:meth:`ProductTree.flood` spreads it at once over all of them, through the roadmap of segments
+the tree has checked (:mod:`planner.search.roadmap`), which also starts suffix trees
+(:meth:`ProductTree.seed_from`).
 
 Per iteration the work is a handful of numpy operations over (neighbours x automaton states):
 node ids live in a points x states table, costs in an array, and the successor relation in
