@@ -146,6 +146,18 @@ def candidate_results(
     return candidate
 
 
+def kept_results(
+    rounds: Sequence[Sequence[TrainResult]], judged: Sequence[RepairRound]
+) -> list[TrainResult]:
+    """The results a run keeps: round 0's (the sub-tasks' own training), with the results of
+    every judged round that was kept merged in (``rounds[r]``: round ``r``'s results)."""
+    results = list(rounds[0])
+    for record in judged:
+        if record.kept:
+            results = candidate_results(results, rounds[record.round])
+    return results
+
+
 def judged_round(
     round_: int, repaired: Sequence[TrainResult], before: float, after: float, seconds: float
 ) -> RepairRound:

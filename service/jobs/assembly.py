@@ -38,7 +38,7 @@ from service.jobs.progress import mission_heartbeat
 from service.models import Job, JobStatus, MissionStatus
 from service.settings import Settings
 from workers.evaluation import MissionEvaluation
-from workers.handover_repair import RepairRound, candidate_results
+from workers.handover_repair import RepairRound, kept_results
 from workers.run import MissionRun
 from workers.training import TrainResult
 
@@ -90,7 +90,7 @@ def assemble_step(settings: Settings, mission_id: str, dispatch: Dispatch) -> st
         mission_heartbeat(db, mission_id, settings.heartbeat_seconds),
     ):
         run = open_run(settings, mission_id, document)
-        results = _kept_results(rounds, judged)
+        results = kept_results(rounds, judged)
         pending = rounds[len(judged) + 1] if len(rounds) > len(judged) + 1 else None
         if pending is not None:
             if interim is None:
@@ -197,14 +197,3 @@ def _results_by_round(jobs: Sequence[Job]) -> list[list[TrainResult]]:
     for job in sorted(jobs, key=lambda j: (j.repair_round, j.index)):
         rounds.setdefault(job.repair_round, []).append(TrainResult.from_json(job.result or {}))
     return [rounds[r] for r in sorted(rounds)]
-
-
-def _kept_results(
-    rounds: Sequence[Sequence[TrainResult]], judged: Sequence[RepairRound]
-) -> list[TrainResult]:
-    """Round 0's results with every judged round that was kept merged in."""
-    results = list(rounds[0])
-    for record in judged:
-        if record.kept:
-            results = candidate_results(results, rounds[record.round])
-    return results

@@ -217,3 +217,23 @@ def test_explicit_starts_are_checked(mission: MissionSpec, plan: MissionPlan) ->
         make_env(mission, 0, plan=plan, starts=[Pose(np.ones(2), 0.0), Pose(np.full(2, 9.0), 0)])
     with pytest.raises(EnvConfigError, match="no start pose"):
         make_env(mission, 0, plan=plan, starts=[])
+
+
+def test_the_kept_results_merge_only_the_rounds_that_were_kept(tmp_path: Path) -> None:
+    from workers.handover_repair import kept_results
+
+    first = [result(k, tmp_path) for k in range(3)]
+
+    def repaired(k: int, round_: int) -> TrainResult:
+        path = str(tmp_path / f"subtask_{k}" / f"handover_{round_}" / "model.zip")
+        return TrainResult(k, 100 + k, path, 50, 0, "target")
+
+    rounds = [first, [repaired(1, 1)], [repaired(1, 2), repaired(2, 2)]]
+    judged = [
+        RepairRound(1, [1], 0.5, 0.7, True, 1.0),
+        RepairRound(2, [1, 2], 0.7, 0.6, False, 1.0),
+    ]
+    kept = kept_results(rounds, judged)
+    assert [r.repairs for r in kept] == [0, 1, 0]
+    assert kept[1].model_path.endswith("handover_1/model.zip") and kept[1].steps == 250
+    assert kept_results(rounds[:1], []) == first
