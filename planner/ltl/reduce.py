@@ -17,6 +17,10 @@ from __future__ import annotations
 from planner.ltl.automaton import nodes_on_cycles
 from planner.ltl.gba import RawBuchi, add_cube
 from planner.ltl.guard import Cube, covers
+from planner.ltl.letters import LetterSets
+
+LETTER_ATOMS = 8
+"""Up to this many atoms the simulation reasons letter by letter (2^8 letters)."""
 
 SIMULATION_BUDGET = 150_000
 """Largest ``states x cubes`` for which the quadratic simulation is computed (~0.5 s)."""
@@ -73,8 +77,34 @@ def simulation(ba: RawBuchi, candidates: list[int] | None = None) -> list[set[in
     if candidates is not None:
         sim = [(s & c) | 1 << p for p, (s, c) in enumerate(zip(sim, candidates, strict=True))]
     implied: dict[tuple[int, int, int], int] = {}
+    # Few atoms: per letter, the targets of p (as a list) and of q (as a mask), so that
+    # q answers p when each target of p on each letter meets sim[target] among q's.
+    by_letter: list[list[tuple[int, list[int]]]] = []
+    q_masks: list[list[int]] = []
+    if len(names) <= LETTER_ATOMS:
+        sets = LetterSets(names)
+        letters = range(1 << len(names))
+        for p in range(n):
+            out = [(t, sets.of_cubes(cubes)) for t, cubes in ba.edges.get(p, {}).items()]
+            masks = [sum(1 << t for t, ls in out if ls >> w & 1) for w in letters]
+            q_masks.append(masks)
+            targets: dict[int, list[int]] = {}
+            for mask in set(masks):
+                targets[mask] = [t for t in range(n) if mask >> t & 1]
+            by_letter.append([(w, targets[mask]) for w, mask in enumerate(masks) if mask])
+
+    def answers_by_letters(p: int, q: int) -> bool:
+        q_row = q_masks[q]
+        for w, targets in by_letter[p]:
+            reach = q_row[w]
+            for t in targets:
+                if not sim[t] & reach:
+                    return False
+        return True
 
     def answers(p: int, q: int) -> bool:
+        if by_letter:
+            return answers_by_letters(p, q)
         for i, (target, cube, pos, neg) in enumerate(flat[p]):
             key = (p, i, q)
             weaker = implied.get(key)
