@@ -81,6 +81,7 @@ def simulation(ba: RawBuchi, candidates: list[int] | None = None) -> list[set[in
     # q answers p when each target of p on each letter meets sim[target] among q's.
     by_letter: list[list[tuple[int, list[int]]]] = []
     q_masks: list[list[int]] = []
+    enabled: list[int] = []
     if len(names) <= LETTER_ATOMS:
         sets = LetterSets(names)
         letters = range(1 << len(names))
@@ -88,12 +89,15 @@ def simulation(ba: RawBuchi, candidates: list[int] | None = None) -> list[set[in
             out = [(t, sets.of_cubes(cubes)) for t, cubes in ba.edges.get(p, {}).items()]
             masks = [sum(1 << t for t, ls in out if ls >> w & 1) for w in letters]
             q_masks.append(masks)
+            enabled.append(sum(1 << w for w, mask in enumerate(masks) if mask))
             targets: dict[int, list[int]] = {}
             for mask in set(masks):
                 targets[mask] = [t for t in range(n) if mask >> t & 1]
             by_letter.append([(w, targets[mask]) for w, mask in enumerate(masks) if mask])
 
     def answers_by_letters(p: int, q: int) -> bool:
+        if enabled[p] & ~enabled[q]:
+            return False
         q_row = q_masks[q]
         for w, targets in by_letter[p]:
             reach = q_row[w]

@@ -3,8 +3,9 @@
 Pipeline: parse -> negation normal form -> rewriting (:mod:`planner.ltl.rewrite`) ->
 very weak alternating automaton (:mod:`planner.ltl.vwaa`) -> degeneralized Büchi automaton
 through an implicit generalized Büchi automaton (:mod:`planner.ltl.gba`) -> simulation-based
-reduction (:mod:`planner.ltl.reduce`). Guards stay DNF cubes throughout; no step enumerates
-the 2^|AP| letters.
+reduction (:mod:`planner.ltl.reduce`), for two orders of the acceptance sets when the
+formula has several ``F``/``U`` obligations (the smaller automaton wins). Guards stay DNF
+cubes throughout; only the simulation, up to 8 atoms, reasons on letter sets.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from planner.ltl.gba import Degeneralizer, RawBuchi
 from planner.ltl.guard import Guard
 from planner.ltl.reduce import reduce_buchi
 from planner.ltl.rewrite import simplify
-from planner.ltl.vwaa import build_vwaa
+from planner.ltl.vwaa import build_vwaa, reordered_finals
 
 
 def translate(formula: Formula | str) -> Buchi:
@@ -27,8 +28,18 @@ def translate(formula: Formula | str) -> Buchi:
     """
     f = parse(formula) if isinstance(formula, str) else formula
     nnf = simplify(to_nnf(f))
-    raw = Degeneralizer(build_vwaa(nnf)).build()
-    return to_buchi(reduce_buchi(raw), tuple(sorted(atoms(f))))
+    vwaa = build_vwaa(nnf)
+    best = reduce_buchi(Degeneralizer(vwaa).build())
+    other = reordered_finals(vwaa)
+    if other is not None:
+        candidate = reduce_buchi(Degeneralizer(other).build())
+        if _size(candidate) < _size(best):
+            best = candidate
+    return to_buchi(best, tuple(sorted(atoms(f))))
+
+
+def _size(raw: RawBuchi) -> tuple[int, int]:
+    return raw.num_states, sum(len(cs) for out in raw.edges.values() for cs in out.values())
 
 
 def to_buchi(raw: RawBuchi, atom_names: tuple[str, ...]) -> Buchi:

@@ -19,7 +19,7 @@ this, a conjunction of k ``G F`` formulas yields 2^k intermediate automaton stat
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from planner.ltl.formula import (
     And,
@@ -73,9 +73,11 @@ class Vwaa:
 def build_vwaa(nnf: Formula) -> Vwaa:
     """The VWAA of ``nnf`` (negation normal form, ``W`` allowed), with every reachable state.
 
-    ``finals`` lists the final states in order of creation, outermost subformulas first;
-    that order is the order of the acceptance sets after degeneralization. ``final_free``
-    holds the states from which no final state can be reached.
+    ``finals`` lists the final states in order of creation, outermost subformulas first,
+    the ``G F`` states last; that order is the order of the acceptance sets after
+    degeneralization. ``G F`` last keeps the level at 0 while an ``F`` or ``U`` obligation
+    is pending (``G F a & F G b``: 3 states, not 4). ``final_free`` holds the states from
+    which no final state can be reached.
     """
     builder = _Builder()
     vwaa = builder.vwaa
@@ -91,6 +93,7 @@ def build_vwaa(nnf: Formula) -> Vwaa:
         for move in vwaa.moves[q]:
             todo.extend(sorted(move.targets - done))
     vwaa.finals = sorted(q for q in done if _is_final(vwaa.formulas[q]))
+    vwaa.finals.sort(key=lambda q: _is_gf(vwaa.formulas[q]))
     free = {q for q in done if q not in vwaa.finals}
     shrinking = True
     while shrinking:
@@ -111,6 +114,20 @@ def _unweak(f: Formula) -> Formula:
     if isinstance(f, And | Or | Until | Release):
         return type(f)(_unweak(f.left), _unweak(f.right))
     return f
+
+
+def reordered_finals(vwaa: Vwaa) -> Vwaa | None:
+    """The same VWAA with the other order of acceptance sets worth trying, if any.
+
+    The innermost ``F``/``U`` obligations first instead of the outermost (``G F`` stay
+    last). Neither order is always better: across Dwyer's patterns each wins on some
+    (``G (a -> F (b & X F c))``: 5 states innermost first, 7 outermost first).
+    """
+    plain = [q for q in vwaa.finals if not _is_gf(vwaa.formulas[q])]
+    if len(plain) < 2:
+        return None
+    recurring = [q for q in vwaa.finals if _is_gf(vwaa.formulas[q])]
+    return replace(vwaa, finals=[*reversed(plain), *recurring])
 
 
 def _is_gf(f: Formula) -> bool:
