@@ -229,7 +229,9 @@ def main(argv: list[str] | None = None) -> None:
                 larger.append(f"{name} ({ours['states']} > {ref.split('/')[0]})")
         if spin:
             row.append(
-                "X" if uses_next(formula) else reference(["spin", "-f"], to_spin(formula), 60)
+                "X"
+                if uses_next(formula)
+                else reference(["spin", "-f"], to_spin(formula), args.timeout)
             )
         print(" ".join(f"{c:>14}" if i == 0 else f"{c:>8}" for i, c in enumerate(row)))
         sys.stdout.flush()
