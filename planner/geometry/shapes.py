@@ -20,6 +20,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from planner.geometry.segment_grid import near_segment_pairs
+
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
@@ -112,6 +114,28 @@ def segment_segment_sqdist_2d(
         np.minimum(segment_point_sqdist(p, q, a), segment_point_sqdist(p, q, b)),
     )
     return np.asarray(np.where(crossing, 0.0, ends))
+
+
+def first_close_edges(p: FloatArray, q: FloatArray, tol: float) -> tuple[int, int] | None:
+    """The first pair ``(i, j)``, ``i < j``, of non-adjacent edges ``p[k]-q[k]`` of a closed
+    ring that lie within ``tol`` of each other, in lexicographic order (None: no such pair).
+
+    Only the pairs a uniform grid finds near each other are measured
+    (``planner.geometry.segment_grid``): the answer is the all-pairs one, without its
+    quadratic time and memory.
+    """
+    m = len(p)
+    best: tuple[int, int] | None = None
+    for pairs in near_segment_pairs(p, q, 2.0 * tol):
+        i, j = pairs[:, 0], pairs[:, 1]
+        adjacent = (j == i + 1) | ((i == 0) & (j == m - 1))
+        d2 = segment_segment_sqdist_2d(p[i], q[i], p[j], q[j])
+        bad = np.flatnonzero((~adjacent) & (d2 <= tol * tol))
+        if len(bad):
+            k = bad[np.lexsort((j[bad], i[bad]))[0]]
+            found = (int(i[k]), int(j[k]))
+            best = found if best is None else min(best, found)
+    return best
 
 
 @dataclass(frozen=True, eq=False, init=False)
@@ -291,13 +315,10 @@ class Polygon:
         if np.any(folds):
             k = int(np.argmax(folds))
             raise ValueError(f"polygon is not simple: edge {(k + 1) % m} folds back on edge {k}")
-        i, j = np.triu_indices(m, k=1)
-        adjacent = (j == i + 1) | ((i == 0) & (j == m - 1))
-        d2 = segment_segment_sqdist_2d(p[i], q[i], p[j], q[j])
-        bad = (~adjacent) & (d2 <= (1e-12 * scale) ** 2)
-        if np.any(bad):
-            k = int(np.argmax(bad))
-            raise ValueError(f"polygon is not simple: edge {i[k]} touches or crosses edge {j[k]}")
+        crossing = first_close_edges(p, q, 1e-12 * scale)
+        if crossing is not None:
+            i, j = crossing
+            raise ValueError(f"polygon is not simple: edge {i} touches or crosses edge {j}")
 
     def _edges(self) -> tuple[FloatArray, FloatArray]:
         return self.vertices, np.roll(self.vertices, -1, axis=0)
