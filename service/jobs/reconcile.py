@@ -6,7 +6,8 @@ with its worker. Every worker therefore runs ``reconcile_forever`` in a thread; 
 
 - cancels missions with a cancel request and no running job;
 - re-queues jobs marked running whose heartbeat is stale and sends them again (they resume
-  from their checkpoints);
+  from their checkpoints), except right after the database was unreachable, when every
+  heartbeat is stale (``OutageWatch``);
 - sends planning / assembly again for missions whose planner or assembler stopped beating;
 - assembles missions whose jobs are all done but which are still training (lost callback);
 - when the broker queue was empty at two passes in a row, sends again missions and jobs
@@ -56,9 +57,13 @@ class Reconciled:
         return bool(self.cancelled or self.jobs or self.plans or self.assemblies)
 
 
-def reconcile_once(settings: Settings, dispatch: Dispatch, drained: bool = False) -> Reconciled:
+def reconcile_once(
+    settings: Settings, dispatch: Dispatch, drained: bool = False, reclaim: bool = True
+) -> Reconciled:
     """One reconciliation pass (see the module docstring). ``drained``: the broker queue was
-    found empty (long enough that queued work without a message is lost, not in flight)."""
+    found empty (long enough that queued work without a message is lost, not in flight).
+    ``reclaim`` False: stale heartbeats are not trusted yet (``OutageWatch``), so no running
+    job and no planning or assembling mission is taken back."""
     db = database_for(settings)
     out = Reconciled()
     # First, while the jobs re-queued below are not yet sent: queued work whose message is
@@ -71,14 +76,15 @@ def reconcile_once(settings: Settings, dispatch: Dispatch, drained: bool = False
             out.jobs = [(job.mission_id, job.index, job.repair_round) for job in lost]
     with db.session() as session:
         out.cancelled = repository.cancel_idle_missions(session)
-    with db.session() as session:
-        stale = repository.reclaim_stale_jobs(session, settings.stale_after_seconds)
-        out.jobs.extend((job.mission_id, job.index, job.repair_round) for job in stale)
-    with db.session() as session:
-        stalled = repository.reclaim_stalled_missions(session, settings.stale_after_seconds)
-        for mission in stalled:  # planning -> queued, evaluating -> training
-            stage = out.plans if mission.status == MissionStatus.queued else out.assemblies
-            stage.append(mission.id)
+    if reclaim:
+        with db.session() as session:
+            stale = repository.reclaim_stale_jobs(session, settings.stale_after_seconds)
+            out.jobs.extend((job.mission_id, job.index, job.repair_round) for job in stale)
+        with db.session() as session:
+            stalled = repository.reclaim_stalled_missions(session, settings.stale_after_seconds)
+            for mission in stalled:  # planning -> queued, evaluating -> training
+                stage = out.plans if mission.status == MissionStatus.queued else out.assemblies
+                stage.append(mission.id)
     with db.session() as session:
         ready = repository.claim_assemblies(session, settings.requeue_after_seconds)
         out.assemblies.extend(m.id for m in ready)
@@ -106,6 +112,30 @@ class DrainWatch:
         drained = empty and self._empty_before
         self._empty_before = empty
         return drained
+
+
+class OutageWatch:
+    """Whether stale heartbeats can be trusted. While the database was unreachable no live job
+    could write its heartbeat either: right after an outage longer than
+    ``stale_after_seconds`` every running job looks dead. So after a pass that could not reach
+    the database, the reconciler reclaims nothing until ``grace`` seconds (the staleness
+    limit: every live job has beaten by then) after it reached the database again."""
+
+    def __init__(self, grace: float) -> None:
+        self.grace = grace
+        self._regained: float | None = -float("inf")
+        """When the database answered again after a failed pass (None: it has not yet)."""
+
+    def failed(self) -> None:
+        """A pass could not reach the database."""
+        self._regained = None
+
+    def may_reclaim(self) -> bool:
+        """Whether this pass may take back jobs and missions with stale heartbeats."""
+        now = time.monotonic()
+        if self._regained is None:
+            self._regained = now
+        return now - self._regained >= self.grace
 
 
 def queue_size(app: Celery) -> int | None:
@@ -150,9 +180,11 @@ def reconcile_forever(app: LtlnavCelery, stop: threading.Event) -> None:
     # Workers started together should not reconcile in lockstep.
     stop.wait(random.uniform(0, min(1.0, settings.reconcile_seconds)))
     watch = DrainWatch()
+    outages = OutageWatch(settings.stale_after_seconds)
     while not stop.is_set():
         try:
-            reconcile_once(settings, dispatch, drained=watch.drained(queue_size(app)))
+            drained = watch.drained(queue_size(app))
+            reconcile_once(settings, dispatch, drained, reclaim=outages.may_reclaim())
             if time.monotonic() - last_cleanup >= settings.broker_cleanup_seconds:
                 last_cleanup = time.monotonic()
                 removed = clean_broker(settings)
@@ -161,6 +193,7 @@ def reconcile_forever(app: LtlnavCelery, stop: threading.Event) -> None:
                     log.info("deleted %d consumed broker messages", removed)
                 prune_expired(settings)
         except DBAPIError as error:  # database down or not migrated: no traceback each pass
+            outages.failed()
             log.warning("reconciliation failed (database): %s", error.orig)
         except Exception:
             log.exception(
