@@ -106,6 +106,9 @@ class Layout:
             LTLNAV_DATA_DIR=str(self.root / "data"),
             LTLNAV_EXAMPLES_DIR=str(self.root / "examples"),
             LTLNAV_HEARTBEAT_SECONDS=str(HEARTBEAT),
+            # The bench submits hundreds of missions at once: no per-key quotas (0: none).
+            LTLNAV_QUOTA_ACTIVE_MISSIONS="0",
+            LTLNAV_QUOTA_SUBMISSIONS_PER_MINUTE="0",
         )
         if self.redis:
             base, _, db = self.redis.rpartition("/")
