@@ -9,9 +9,11 @@ with its worker. Every worker therefore runs ``reconcile_forever`` in a thread; 
   from their checkpoints), except right after the database was unreachable, when every
   heartbeat is stale (``OutageWatch``);
 - sends planning / assembly again for missions whose planner or assembler stopped beating;
-- assembles missions whose jobs are all done but which are still training (lost callback);
 - when the broker queue was empty at two passes in a row, sends again missions and jobs
-  still queued for a while (their messages were lost);
+  still queued for a while (their messages were lost), and assembles missions whose jobs
+  are all done but which are still training (a lost callback: while the queue holds work,
+  the callback may be waiting behind it, and sending another every pass under a backlog
+  piled up duplicate assemblies in the broker faster than the workers drained them);
 - every ``broker_cleanup_seconds``, deletes consumed rows of the SQLAlchemy broker, expired
   results, and what ``service.jobs.retention`` says has expired.
 
@@ -85,9 +87,10 @@ def reconcile_once(
             for mission in stalled:  # planning -> queued, evaluating -> training
                 stage = out.plans if mission.status == MissionStatus.queued else out.assemblies
                 stage.append(mission.id)
-    with db.session() as session:
-        ready = repository.claim_assemblies(session, settings.requeue_after_seconds)
-        out.assemblies.extend(m.id for m in ready)
+    if drained:  # a callback behind a backlog is not lost (see the module docstring)
+        with db.session() as session:
+            ready = repository.claim_assemblies(session, settings.requeue_after_seconds)
+            out.assemblies.extend(m.id for m in ready)
     for mission_id, index, repair_round in out.jobs:
         dispatch.train(mission_id, index, repair_round)
     for mission_id in out.plans:
