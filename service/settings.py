@@ -17,6 +17,10 @@ from typing import Annotated, Any
 from pydantic import AliasChoices, Field, field_validator, model_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
+from workers.limits import AdmissionLimits
+
+_LIMITS = AdmissionLimits()
+
 
 def _sqlite_url(scheme: str, path: Path) -> str:
     return f"{scheme}:///{path}"
@@ -77,6 +81,78 @@ class Settings(BaseSettings):
 
     max_body_bytes: int = Field(default=1_000_000, gt=0)
     """Largest accepted request body; larger ones get 413."""
+
+    # Admission limits (workers.limits.AdmissionLimits): a mission over one is refused with 422
+    # by the API and exit code 2 by ``ltlnav validate``/``train``, naming the setting to raise.
+
+    max_world_vertices: int = Field(default=_LIMITS.max_world_vertices, ge=3)
+    """Polygon vertices of a world, obstacles and regions together (counted before the
+    polygons are built; the simplicity, collision and label tests grow with them)."""
+
+    max_obstacles: int = Field(default=_LIMITS.max_obstacles, ge=0)
+    """Obstacles of a world: listed ones plus ``random_obstacles.count``."""
+
+    max_regions: int = Field(default=_LIMITS.max_regions, ge=1)
+    """Labelled regions of a world."""
+
+    max_formula_chars: int = Field(default=_LIMITS.max_formula_chars, ge=1)
+    """Characters of a mission's task formula."""
+
+    max_temporal_operators: int = Field(default=_LIMITS.max_temporal_operators, ge=1)
+    """Temporal operators (U R W G F X) of a task formula."""
+
+    max_automaton_states: int = Field(default=_LIMITS.max_automaton_states, ge=1)
+    """States of a task's Büchi automaton pruned for its world, checked when the mission is
+    planned (the plan fails with a reason naming this setting)."""
+
+    max_timesteps: int = Field(default=_LIMITS.max_timesteps, ge=1)
+    """``training.n_timesteps`` and ``training.handover_steps`` (env steps per sub-task); a
+    replay buffer (``buffer_size``) or PPO rollout (``n_steps``) is at most ``n_timesteps``."""
+
+    max_episodes: int = Field(default=_LIMITS.max_episodes, ge=1)
+    """``training.eval_episodes``, ``final_eval_episodes`` and ``mission_episodes``."""
+
+    max_evaluations: int = Field(default=_LIMITS.max_evaluations, ge=1)
+    """Periodic evaluations per training run: ``eval_freq >= n_timesteps / this``."""
+
+    max_checkpoints: int = Field(default=_LIMITS.max_checkpoints, ge=1)
+    """Checkpoints per training run: ``checkpoint_freq >= n_timesteps / this``."""
+
+    max_handover_rounds: int = Field(default=_LIMITS.max_handover_rounds, ge=0)
+    """``training.handover_rounds``."""
+
+    max_cycles: int = Field(default=_LIMITS.max_cycles, ge=1)
+    """``training.cycles`` (suffix cycles of a mission rollout)."""
+
+    max_episode_steps: int = Field(default=_LIMITS.max_episode_steps, ge=1)
+    """``training.env.max_steps``."""
+
+    max_rays: int = Field(default=_LIMITS.max_rays, ge=0)
+    """``training.env.rays``."""
+
+    max_planner_seconds: float = Field(default=_LIMITS.max_planner_seconds, gt=0)
+    """``planner.time_limit`` and ``planner.refine_seconds`` (CPU seconds)."""
+
+    max_planner_iterations: int = Field(default=_LIMITS.max_planner_iterations, ge=1)
+    """``planner.max_iterations`` and ``planner.refine_iterations``."""
+
+    max_net_width: int = Field(default=_LIMITS.max_net_width, ge=1)
+    """Units of one layer of ``hyperparams.policy_kwargs.net_arch`` (list or {pi, qf, vf})."""
+
+    max_net_depth: int = Field(default=_LIMITS.max_net_depth, ge=1)
+    """Layers of one network of ``net_arch``."""
+
+    max_critics: int = Field(default=_LIMITS.max_critics, ge=1)
+    """``policy_kwargs.n_critics`` (SAC, TD3)."""
+
+    max_batch_size: int = Field(default=_LIMITS.max_batch_size, ge=1)
+    """``hyperparams.batch_size``."""
+
+    max_gradient_steps: int = Field(default=_LIMITS.max_gradient_steps, ge=1)
+    """``hyperparams.gradient_steps`` (off-policy)."""
+
+    max_epochs: int = Field(default=_LIMITS.max_epochs, ge=1)
+    """``hyperparams.n_epochs`` (PPO)."""
 
     heartbeat_seconds: float = Field(default=10.0, gt=0)
     """How often a running job writes its heartbeat (and at most how often its progress)."""
@@ -146,6 +222,10 @@ class Settings(BaseSettings):
     health_probe_seconds: float = Field(default=5.0, gt=0)
     """How often the API probes the database and the broker for ``/healthz``, off the request
     path: a health check reads the last result and opens no connection."""
+
+    def admission_limits(self) -> AdmissionLimits:
+        """The admission limits (``max_*`` fields) as the workers' plain dataclass."""
+        return AdmissionLimits(**{name: getattr(self, name) for name in AdmissionLimits.names()})
 
     @property
     def soft_time_limit(self) -> float:

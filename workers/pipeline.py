@@ -19,6 +19,7 @@ from typing import Any
 
 from workers.hooks import TrainingHooks
 from workers.jobs import SubtaskJob
+from workers.limits import AdmissionLimits
 from workers.mission import MissionSpec
 from workers.run import MissionRun, RunResult
 from workers.training import TrainResult
@@ -57,12 +58,14 @@ def run_pipeline(
     out_dir: str | Path,
     jobs: int | None = None,
     on_progress: PipelineProgress | None = None,
+    limits: AdmissionLimits | None = None,
 ) -> RunResult:
     """Open the run of ``mission`` in ``out_dir``, train its sub-tasks (``jobs`` processes,
     default the CPU count), roll out the concatenated policy, repair hand-overs while the
     mission is below its target and write ``out_dir/bundle.zip``. The training section
-    (budget, seed, ...) is the mission's own: override it on the spec before calling."""
-    run = MissionRun.open(mission, out_dir)
+    (budget, seed, ...) is the mission's own: override it on the spec before calling.
+    ``limits``: see ``MissionRun.open``."""
+    run = MissionRun.open(mission, out_dir, limits)
     first = run.jobs()
     if on_progress is not None:  # every sub-task shows up at once, in order
         for job in first:

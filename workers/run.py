@@ -27,7 +27,7 @@ from typing import Any
 from envs.mission_env import MissionEnv
 from planner.decompose import lasso_stages
 from planner.errors import PlanningError
-from planner.plan import MissionPlan, plan_mission, verify_plan
+from planner.plan import MissionPlan, plan_mission, translate_task, verify_plan
 from planner.serialize import plan_from_dict, plan_to_dict
 from workers.atomic import write_json
 from workers.evaluation import MissionEvaluation, rollout_mission, stage_policies
@@ -40,6 +40,7 @@ from workers.handover_repair import (
 )
 from workers.hooks import TrainingHooks
 from workers.jobs import SubtaskJob
+from workers.limits import AdmissionLimits, automaton_problems
 from workers.mission import MissionError, MissionSpec, parse_mission
 from workers.training import ALGORITHMS, TrainResult, train_subtask
 from workers.training_spec import TrainingSpec
@@ -92,15 +93,21 @@ class MissionRun:
         self.mission, self.plan, self.folder = mission, plan, folder
 
     @classmethod
-    def open(cls, mission: MissionSpec | Mapping[str, Any], folder: str | Path) -> MissionRun:
+    def open(
+        cls,
+        mission: MissionSpec | Mapping[str, Any],
+        folder: str | Path,
+        limits: AdmissionLimits | None = None,
+    ) -> MissionRun:
         """Validate ``mission`` (unless already a spec), refuse what cannot be served
-        (``MissionError``), and plan it (``PlanningError`` when infeasible) or load its plan."""
+        (``MissionError``), and plan it (``PlanningError`` when infeasible) or load its plan;
+        ``limits`` (default ``AdmissionLimits()``) bounds the automaton it plans in."""
         spec = mission if isinstance(mission, MissionSpec) else parse_mission(dict(mission))
         problems = servable_problems(spec)
         if problems:
             raise MissionError(problems)
         out = Path(folder)
-        return cls(spec, stored_or_new_plan(spec, out), out)
+        return cls(spec, stored_or_new_plan(spec, out, limits), out)
 
     servable = staticmethod(servable_problems)
 
@@ -236,9 +243,13 @@ class MissionRun:
         )
 
 
-def stored_or_new_plan(mission: MissionSpec, folder: Path) -> MissionPlan:
+def stored_or_new_plan(
+    mission: MissionSpec, folder: Path, limits: AdmissionLimits | None = None
+) -> MissionPlan:
     """The mission's plan: read from ``folder/plan.json`` when made for the same mission
-    (training options aside), else planned, verified and stored there."""
+    (training options aside), else planned, verified and stored there. A new plan is refused
+    (``MissionError`` on ``task``) when the formula's automaton, pruned for the world, has more
+    states than ``limits.max_automaton_states`` (default ``AdmissionLimits()``)."""
     stored = folder / PLAN_FILE
     planning = mission.model_dump(mode="json", exclude={"training"})
     saved = _read_plan_file(stored)
@@ -249,6 +260,10 @@ def stored_or_new_plan(mission: MissionSpec, folder: Path) -> MissionPlan:
             warnings.warn(f"planning anew: {stored} holds no usable plan ({error!r})", stacklevel=2)
     world = mission.build_world()
     radius = mission.robot.radius
+    nba, pruned = translate_task(mission.task, world, radius)
+    too_large = automaton_problems(nba.num_states, pruned.num_states, limits or AdmissionLimits())
+    if too_large:
+        raise MissionError(too_large)
     plan = plan_mission(world, mission.task, mission.robot.position(), radius, mission.planner)
     problems = verify_plan(plan, world, radius)
     if problems:
