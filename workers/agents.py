@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import pickle
 import warnings
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +39,20 @@ ACTIVATION_MODULES: dict[str, type[torch.nn.Module]] = {
 
 class TrainingError(LtlnavError):
     """A training job that cannot run as asked (bad sub-task index, unusable plan)."""
+
+
+UNREADABLE = (
+    OSError,
+    EOFError,
+    ValueError,
+    RuntimeError,
+    KeyError,
+    AssertionError,
+    pickle.UnpicklingError,
+    zipfile.BadZipFile,
+)
+"""What loading a damaged checkpoint raises: a model .zip cut in half opens as a zip that holds
+no ``data`` entry, which SB3 reports with an ``assert`` (AssertionError)."""
 
 
 def hyperparameters(training: TrainingSpec, action_dim: int) -> dict[str, Any]:
@@ -81,7 +96,7 @@ def load_agent(
             model = cls.load(path, env=env, device="cpu")
             if buffer is not None and isinstance(model, OffPolicyAlgorithm):
                 model.load_replay_buffer(buffer)
-        except (OSError, EOFError, ValueError, RuntimeError, pickle.UnpicklingError) as err:
+        except UNREADABLE as err:
             # a checkpoint cut short by the kill that restarted this job: use an older one
             warnings.warn(f"skipping unreadable checkpoint {path.name}: {err}", stacklevel=2)
             continue
