@@ -167,9 +167,9 @@ def failing(
     retry: Callable[[BaseException], bool] | None = None,
 ) -> Iterator[None]:
     """Turn any error of the block into a ``failed`` mission (and job ``(id, fencing
-    token)``, if this attempt still holds it) with the reason, unless ``retry(error)`` put the
-    work back for a later attempt (it returns True then); re-raise only if nothing can be
-    written."""
+    token)``) with the reason, unless ``retry(error)`` put the work back for a later attempt
+    (it returns True then) or the attempt no longer holds the job (a stale attempt writes
+    nothing: the job's current attempt decides); re-raise only if nothing can be written."""
     try:
         yield
     except Exception as error:
@@ -180,8 +180,11 @@ def failing(
             reason = f"{what}: {describe(error)}"
             if job is not None:
                 with db.session() as session:
-                    if repository.holds_job(session, job[0], job[1]):
-                        repository.finish_job(session, job[0], JobStatus.failed, reason=reason)
+                    if not repository.holds_job(session, job[0], job[1]):
+                        # a later attempt owns the job: this stale one records nothing
+                        log.warning("job %d: a stale attempt's error not recorded", job[0])
+                        return
+                    repository.finish_job(session, job[0], JobStatus.failed, reason=reason)
             fail_mission(db, mission_id, reason)
         except Exception:
             log.exception("could not record the failure of mission %s", mission_id)
