@@ -39,8 +39,9 @@ def reduce_buchi(ba: RawBuchi) -> RawBuchi:
             return ba
         sim = simulation(ba)
         ba = trim(quotient(ba, sim))
-        ba = trim(prune_little_brothers(ba, simulation(ba)))
-        ba = trim(restart_initial(ba, simulation(ba)))
+        # Pruning keeps every state's language, so its simulation still orders them.
+        sim = simulation(ba)
+        ba = trim(restart_initial(prune_little_brothers(ba, sim), sim))
         if (ba.num_states, _num_cubes(ba)) == size:
             return ba
 
