@@ -64,11 +64,13 @@ def ltl2ba(
 def validate(
     mission: Annotated[Path, typer.Argument(help="Mission file (YAML or JSON).")],
 ) -> None:
-    """Check a mission file and report every problem with its field path."""
-    from workers.mission import load_mission
+    """Check a mission file and report every problem with its field path (the service's
+    admission limits included: ``LTLNAV_MAX_...`` settings)."""
+    from service.settings import get_settings
+    from workers.admission import load_admitted
 
     try:
-        spec = load_mission(mission)
+        spec = load_admitted(mission, get_settings().admission_limits())
     except LtlnavError as error:
         raise _fail(error) from error
     typer.echo(
@@ -159,12 +161,15 @@ def train(
     """Plan a mission, train every sub-task, evaluate the whole mission, write DIR/bundle.zip.
 
     Re-running on the same folder resumes from the checkpoints."""
+    from service.settings import get_settings
     from service.train_progress import TrainProgress
-    from workers.mission import load_mission
+    from workers.admission import load_admitted, mission_problems
+    from workers.mission import MissionError
     from workers.pipeline import run_pipeline
 
+    limits = get_settings().admission_limits()
     try:
-        spec = load_mission(mission)
+        spec = load_admitted(mission, limits)
     except LtlnavError as error:
         raise _fail(error) from error
     update: dict[str, object] = {}
@@ -177,10 +182,13 @@ def train(
     if update:
         training = spec.training.model_validate({**spec.training.model_dump(), **update})
         spec = spec.model_copy(update={"training": training})
+        problems = mission_problems(spec, limits)
+        if problems:
+            raise _fail(MissionError(problems))
     folder = out if out is not None else Path("runs") / spec.name
     with TrainProgress() as bars:
         try:
-            result = run_pipeline(spec, folder, jobs=jobs, on_progress=bars.show)
+            result = run_pipeline(spec, folder, jobs=jobs, on_progress=bars.show, limits=limits)
         except LtlnavError as error:
             raise _fail(error) from error
     for r in result.results:

@@ -5,7 +5,9 @@ arrives as decoded JSON (``MissionBody``); ``valid_submission`` validates it wit
 ``workers.mission.parse_mission``, the validation of the CLI, so a problem reads the same
 everywhere: its field path, the formula column for the task, unknown labels found even when
 another section is invalid. A valid mission that the service can never run (``servable_problems``)
-is refused the same way, before anything is stored."""
+or one over the operator's admission limits (``workers.admission.admit``: counts checked on the
+raw body before any shape is built, then budgets and sizes) is refused the same way, before
+anything is stored."""
 
 from __future__ import annotations
 
@@ -22,7 +24,9 @@ from service.api.errors import body_problem, invalid
 from service.api.examples import ExampleCatalogue
 from service.api.json_body import decode_json
 from service.api.schemas import MissionCreate, submission_kind
-from workers.mission import MissionError, MissionSpec, parse_mission
+from workers.admission import admit, mission_problems
+from workers.limits import AdmissionLimits
+from workers.mission import MissionError, MissionSpec
 from workers.run import servable_problems
 
 log = logging.getLogger(__name__)
@@ -77,9 +81,9 @@ class Submission:
     spec: MissionSpec
 
 
-def _validate(document: Any) -> MissionSpec:
+def _validate(document: Any, limits: AdmissionLimits) -> MissionSpec:
     try:
-        return parse_mission(document)
+        return admit(document, limits)
     except MissionError as error:
         raise invalid([body_problem(path, message) for path, message in error.problems]) from None
     except LtlnavError as error:
@@ -110,15 +114,27 @@ def _refuse_unservable(spec: MissionSpec, by_name: bool) -> None:
         raise invalid([body_problem(path, reason, "unservable") for path, reason in problems])
 
 
+def _refuse_over_limits(spec: MissionSpec, limits: AdmissionLimits) -> None:
+    """422 when an example (checked when the catalogue loaded it, not against the limits)
+    asks for more than the limits allow."""
+    problems = [
+        ("example", f"{field}: {reason}") for field, reason in mission_problems(spec, limits)
+    ]
+    if problems:
+        raise invalid([body_problem(path, reason, "over_limit") for path, reason in problems])
+
+
 def valid_submission(body: MissionBody, deps: ServicesDep) -> Submission:
     """The mission of the body, validated fully (syntax, formula, world, robot) and one the
     service can train and bundle; else 422 with every problem located. A plain function, so
     FastAPI runs it in a worker thread, off the event loop."""
     by_name = submission_kind(body) == "example"
+    limits = deps.settings.admission_limits()
     if by_name:
         submission = _example(body["example"], deps.examples)
+        _refuse_over_limits(submission.spec, limits)
     else:
-        submission = Submission(document=body, spec=_validate(body))
+        submission = Submission(document=body, spec=_validate(body, limits))
     _refuse_unservable(submission.spec, by_name)
     return submission
 

@@ -28,7 +28,7 @@ EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 def polygon(n: int) -> list[list[float]]:
     """A simple polygon of ``n`` vertices inside [1, 3]^2."""
     angles = np.linspace(0, 2 * np.pi, n, endpoint=False)
-    return np.c_[2 + 0.8 * np.cos(angles), 2 + 0.8 * np.sin(angles)].round(9).tolist()
+    return np.c_[2 + 0.8 * np.cos(angles), 2 + 0.8 * np.sin(angles)].round(3).tolist()
 
 
 def with_(path: str, value: Any) -> dict[str, Any]:
@@ -51,7 +51,12 @@ HOSTILE: list[tuple[str, Any, str, str]] = [
         "training.n_timesteps",
         "1000000000000 is over the limit 2000000 (LTLNAV_MAX_TIMESTEPS)",
     ),
-    ("planner.time_limit", 1e9, "planner.time_limit", "1000000000 is over the limit 600 (LTLNAV_MAX_PLANNER_SECONDS)"),
+    (
+        "planner.time_limit",
+        1e9,
+        "planner.time_limit",
+        "1000000000 is over the limit 600 (LTLNAV_MAX_PLANNER_SECONDS)",
+    ),
     ("planner.max_iterations", 10**9, "planner.max_iterations", "LTLNAV_MAX_PLANNER_ITERATIONS"),
     ("planner.refine_iterations", 10**9, "planner.refine_iterations", "over the limit 1000000"),
     ("planner.refine_seconds", 1e6, "planner.refine_seconds", "LTLNAV_MAX_PLANNER_SECONDS"),
@@ -125,10 +130,10 @@ def test_hostile_documents_are_refused_quickly(
     path: str, value: Any, field: str, needle: str
 ) -> None:
     document = with_(path, value)
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     with pytest.raises(MissionError) as caught:
         admit(document, LIMITS)
-    elapsed = time.perf_counter() - t0
+    elapsed = time.process_time() - t0
     problems = dict(caught.value.problems)
     assert field in problems, caught.value.problems
     assert needle in problems[field]
