@@ -159,12 +159,17 @@ def process(
 
 
 @contextmanager
-def api_server(layout: Layout) -> Iterator[str]:
-    """``ltlnav serve --no-worker`` on a free port; yields its URL once /healthz answers."""
+def api_server(
+    layout: Layout, started: list[subprocess.Popen[bytes]] | None = None
+) -> Iterator[str]:
+    """``ltlnav serve --no-worker`` on a free port; yields its URL once /healthz answers. Its
+    process is appended to ``started`` when given (the load mode reads its CPU time)."""
     port = free_port()
     log = layout.root / f"serve-{port}.log"
     command = [str(LTLNAV), "serve", "--no-worker", "--host", "127.0.0.1", "--port", str(port)]
     with process(command, layout.env(), log) as proc:
+        if started is not None:
+            started.append(proc)
         url = f"http://127.0.0.1:{port}"
         deadline = time.monotonic() + 90
         while True:

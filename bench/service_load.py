@@ -42,6 +42,7 @@ import random
 import shlex
 import sqlite3
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -164,6 +165,8 @@ class LoadResult:
     get_times: list[float] = field(default_factory=list)
     get_errors: Counter[str] = field(default_factory=Counter)
     poll_seconds: float = 0.0
+    api_cpu_seconds: float = 0.0
+    """CPU time (user + system) of the API process from the first POST to the pollers' end."""
     samples: list[Sample] = field(default_factory=list)
     duplicate_evaluations: int = 0
     duplicate_checkpoints: int = 0
@@ -281,6 +284,15 @@ class Probe:
             result.wall = (_timestamp(last) - _timestamp(first)).total_seconds()
 
 
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds of process ``pid`` so far (Linux ``/proc``; 0 elsewhere)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def _timestamp(value: Any) -> Any:
     """A datetime from a raw column (SQLite hands back ISO strings)."""
     from datetime import datetime
@@ -291,12 +303,15 @@ def _timestamp(value: Any) -> Any:
 class Traffic:
     """The submitters and the pollers of one run, in one asyncio loop."""
 
-    def __init__(self, url: str, result: LoadResult, args: argparse.Namespace) -> None:
-        self.url, self.result, self.args = url, result, args
+    def __init__(
+        self, url: str, result: LoadResult, args: argparse.Namespace, api_pid: int
+    ) -> None:
+        self.url, self.result, self.args, self.api_pid = url, result, args, api_pid
         self.owned: dict[str, list[str]] = {key: [] for key in KEYS}
         self.stop = asyncio.Event()
         self.submitted = False
         self.polls_started = time.monotonic()
+        self.api_cpu_start = cpu_seconds(api_pid)
 
     async def submitter(self, client: httpx.AsyncClient, key: str, indices: list[int]) -> None:
         """Submit missions ``indices`` with ``key`` one after the other (429: wait, again)."""
@@ -360,6 +375,7 @@ class Traffic:
                 ended_at = now
                 self.stop.set()
                 self.result.poll_seconds = now - self.polls_started
+                self.result.api_cpu_seconds = cpu_seconds(self.api_pid) - self.api_cpu_start
                 print(f"  all {ended} ended at {now - started:.0f} s; settling", flush=True)
             if ended_at is not None and now - ended_at > 2 * args.cleanup + args.sample:
                 return
@@ -417,7 +433,8 @@ def run_load(args: argparse.Namespace, backend: str, parent: Path) -> LoadResult
     with ExitStack() as stack:
         layout = stack.enter_context(phase_layout(parent, f"load-{backend}", options))
         layout = dataclasses.replace(layout, extra=extra)
-        url = stack.enter_context(api_server(layout))  # migrated once /healthz answers
+        api: list[subprocess.Popen[bytes]] = []
+        url = stack.enter_context(api_server(layout, api))  # migrated once /healthz answers
         workers = [
             stack.enter_context(start_worker(layout, 1, name=f"load-{number}"))
             for number in range(WORKERS)
@@ -432,7 +449,7 @@ def run_load(args: argparse.Namespace, backend: str, parent: Path) -> LoadResult
         stack.callback(probe.close)
         ready = time.monotonic() - began
         print(f"{backend}: API {url}, {WORKERS} workers ready in {ready:.0f} s", flush=True)
-        asyncio.run(Traffic(url, result, args).run(probe))
+        asyncio.run(Traffic(url, result, args, api[0].pid).run(probe))
         probe.account(result)
         stopping = time.monotonic()
     print(f"{backend}: processes stopped in {time.monotonic() - stopping:.0f} s", flush=True)
@@ -463,6 +480,7 @@ def table_rows(result: LoadResult) -> list[tuple[str, str]]:
     p50, p95, p99 = quantiles_ms(result.get_times)
     q50, _, q99 = quantiles_ms(result.post_times)
     statuses = result.statuses
+    requests = len(result.get_times) + len(result.post_times)
     failed = statuses.get("failed", 0)
     expected_failures = sum(1 for kind in result.kinds.values() if kind != "tiny")
     return [
@@ -490,6 +508,11 @@ def table_rows(result: LoadResult) -> list[tuple[str, str]]:
             f"/s) / {_errors(result.get_errors)}",
         ),
         ("p99 < 50 ms", "met" if p99 < 50 else "MISSED"),
+        (
+            "API CPU per request (GET + POST)",
+            f"{1000 * result.api_cpu_seconds / max(requests, 1):.1f} ms "
+            f"({100 * result.api_cpu_seconds / max(result.poll_seconds, 1e-9):.0f} % of a core)",
+        ),
         (
             "broker messages max / final",
             f"{max(broker, default=0)} / {broker[-1] if broker else '-'}",
