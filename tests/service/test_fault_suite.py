@@ -117,6 +117,7 @@ def test_sigkill_of_a_training_child(cluster: Cluster) -> None:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(600)
 def test_sigkill_of_the_worker_in_planning_training_and_assembly(cluster: Cluster) -> None:
     """One mission, its worker killed in each of its three steps and replaced each time."""
     planning, training, assembly = scenarios.worker_sigkill_each_phase(cluster, TEST)

@@ -9,6 +9,7 @@ started in a session of its own and ``stop()`` SIGKILLs each process group it st
 
 from __future__ import annotations
 
+import ctypes
 import os
 import signal
 import socket
@@ -50,6 +51,13 @@ def with_port(url: str, port: int) -> str:
     parts = urlsplit(url)
     user = f"{parts.username}@" if parts.username else ""
     return urlunsplit(parts._replace(netloc=f"{user}127.0.0.1:{port}"))
+
+
+def _die_with_parent() -> None:
+    """In a started process: be SIGKILLed when the process that started it ends (Linux
+    ``PR_SET_PDEATHSIG``), so that a test or bench that dies leaves no worker behind."""
+    with suppress(OSError, AttributeError):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)
 
 
 def kill_group(process: subprocess.Popen[bytes]) -> None:
@@ -110,6 +118,7 @@ class Cluster:
             stdout=log,
             stderr=subprocess.STDOUT,
             start_new_session=True,
+            preexec_fn=_die_with_parent,
         )
         log.close()
         self.processes.append(process)
