@@ -494,8 +494,10 @@ class Polls:
     """What the pollers of ``api_restart`` saw."""
 
     kill_at: float = 0.0
+    killed_at: float = 0.0
+    """When the killed API process was gone."""
     back_at: float | None = None
-    """When the first 200 after the restart came."""
+    """When the first 200 to a request sent after the kill came."""
     seen: list[tuple[int, float, int]] = field(default_factory=list)
     """``(poller, time, status)``; status 0: no answer (connection refused, reset)."""
 
@@ -530,14 +532,14 @@ def api_restart(cluster: Cluster, scale: Scale) -> tuple[FaultRow, Polls]:
 
     async def poller(k: int, client: httpx.AsyncClient) -> None:
         served_again = False
-        while polling(time.monotonic() - t0, served_again):
+        while polling(sent := time.monotonic() - t0, served_again):
             try:
                 status = (await client.get(f"{base}/missions/{mission_id}")).status_code
             except httpx.HTTPError:
                 status = 0
             now = time.monotonic() - t0  # when the answer (or the failure) came
             polls.seen.append((k, now, status))
-            if status == 200 and polls.kill_at and now > polls.kill_at:
+            if status == 200 and polls.killed_at and sent > polls.killed_at:
                 served_again = True
                 if polls.back_at is None:
                     polls.back_at = now
@@ -547,6 +549,7 @@ def api_restart(cluster: Cluster, scale: Scale) -> tuple[FaultRow, Polls]:
         await asyncio.sleep(scale.poll_seconds / 4)
         polls.kill_at = time.monotonic() - t0
         await asyncio.to_thread(kill_group, api)
+        polls.killed_at = time.monotonic() - t0
         cluster.start_api(port)
 
     async def main() -> None:
