@@ -116,10 +116,13 @@ def test_sigkill_of_a_training_child(cluster: Cluster) -> None:
     assert all(n == 1 for k, n in row.attempts.items() if k != index), row
 
 
+@server_only
 @pytest.mark.slow
 @pytest.mark.timeout(600)
 def test_sigkill_of_the_worker_in_planning_training_and_assembly(cluster: Cluster) -> None:
-    """One mission, its worker killed in each of its three steps and replaced each time."""
+    """One mission, its worker killed in each of its three steps and replaced each time (on
+    Redis + PostgreSQL: the embedded defaults' worker SIGKILL mid-training is
+    ``test_worker_e2e``'s, all three phases are ``bench/faults.py``'s)."""
     planning, training, assembly = scenarios.worker_sigkill_each_phase(cluster, TEST)
     assert_recovered(training, cluster)
     assert training.before and all(training.attempts[k] == 2 for k in training.before), training
