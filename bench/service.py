@@ -188,12 +188,15 @@ def api_server(
 
 @contextmanager
 def start_worker(
-    layout: Layout, concurrency: int, name: str | None = None
+    layout: Layout, concurrency: int, name: str | None = None, nice: int = 0
 ) -> Iterator[tuple[subprocess.Popen[bytes], Path]]:
     """``ltlnav worker --concurrency K`` started (not yet ready: see ``wait_ready``); yields
-    the process and its log. ``name`` tells the logs of several workers of a layout apart."""
+    the process and its log. ``name`` tells the logs of several workers of a layout apart;
+    ``nice`` > 0 runs it under ``nice -n`` (training yields the CPU to the API)."""
     log = layout.root / f"worker-{name or concurrency}.log"
     command = [str(LTLNAV), "worker", "--concurrency", str(concurrency)]
+    if nice:
+        command = ["nice", "-n", str(nice), *command]
     with process(command, layout.env(), log) as proc:
         yield proc, log
 

@@ -76,6 +76,9 @@ WORKERS = 2
 
 FINAL = ("done", "failed", "cancelled")
 
+KEEPALIVE_EXPIRY = 2.0
+"""Seconds the bench's HTTP clients keep an idle connection (below uvicorn's 5 s)."""
+
 TINY_LOAD: dict[str, Any] = {
     "name": "load-tiny",
     "task": "[]!obstacle && <>a",
@@ -389,12 +392,23 @@ class Traffic:
 
     async def run(self, probe: Probe) -> None:
         args = self.args
-        limits = httpx.Limits(max_connections=args.pollers, max_keepalive_connections=args.pollers)
+        # Idle connections are dropped after 2 s, before uvicorn's 5 s keep-alive timeout: at
+        # httpx's default (5 s, the same) a request now and then raced the server's close and
+        # failed with RemoteProtocolError / ReadError, an artefact of the client.
+        limits = httpx.Limits(
+            max_connections=args.pollers,
+            max_keepalive_connections=args.pollers,
+            keepalive_expiry=KEEPALIVE_EXPIRY,
+        )
         started = time.monotonic()
         self.polls_started = started
         async with (
             httpx.AsyncClient(base_url=self.url, timeout=30, limits=limits) as readers,
-            httpx.AsyncClient(base_url=self.url, timeout=60) as writers,
+            httpx.AsyncClient(
+                base_url=self.url,
+                timeout=60,
+                limits=httpx.Limits(keepalive_expiry=KEEPALIVE_EXPIRY),
+            ) as writers,
         ):
             shares = [list(range(i, args.missions, len(KEYS))) for i in range(len(KEYS))]
             pollers = [asyncio.create_task(self.poller(readers, n)) for n in range(args.pollers)]
@@ -436,7 +450,7 @@ def run_load(args: argparse.Namespace, backend: str, parent: Path) -> LoadResult
         api: list[subprocess.Popen[bytes]] = []
         url = stack.enter_context(api_server(layout, api))  # migrated once /healthz answers
         workers = [
-            stack.enter_context(start_worker(layout, 1, name=f"load-{number}"))
+            stack.enter_context(start_worker(layout, 1, f"load-{number}", args.nice))
             for number in range(WORKERS)
         ]
         stack.callback(interrupt, [proc for proc, _ in workers])  # stop both at once
@@ -567,6 +581,9 @@ def parser() -> argparse.ArgumentParser:
     parser.add_argument("--sample", type=float, default=3.0, help="seconds between samples")
     parser.add_argument("--cleanup", type=float, default=5.0, help="broker clean-up period")
     parser.add_argument("--limit", type=float, default=3600.0, help="give up after (s)")
+    parser.add_argument(
+        "--nice", type=int, default=0, help="run the workers under nice -n NICE (0: not)"
+    )
     parser.add_argument("--redis", help="Redis URL of the broker (.../N); results in db N+1")
     parser.add_argument("--postgres", help="PostgreSQL server URL (no database name)")
     parser.add_argument(
@@ -593,7 +610,8 @@ def main(argv: list[str] | None = None) -> list[LoadResult]:
             results.append(run_load(args, backend, Path(tmp)))
     print(f"\nltlnav service load: {args.missions} tiny missions per backend, 10 API keys, ")
     print(
-        f"{WORKERS} x `ltlnav worker --concurrency 1`, {args.pollers} pollers every "
+        f"{WORKERS} x `{f'nice -n {args.nice} ' if args.nice else ''}ltlnav worker "
+        f"--concurrency 1`, {args.pollers} pollers every "
         f"{args.interval:g} s, LTLNAV_KEEP_FAILED_DAYS=0, clean-up every {args.cleanup:g} s"
     )
     print(f"command: {command}")
