@@ -281,11 +281,17 @@ class ProductTree:
         through = np.where(nodes >= 0, self.cost[nodes] + d[:, None], math.inf)
         # Cheapest neighbour node in each automaton state, then for each successor state the
         # cheapest of those that steps to it under L(x_new).
+        # Only the states present among the neighbours are rows: (Q, Q) would be large for
+        # the automaton of a finite any-order task (2^goals states).
         row = through.argmin(axis=0)
         via = through[row, states]
-        options = np.where(reach_new, via[:, None], math.inf)
-        src = options.argmin(axis=0)
-        best = options[src, states]
+        present = np.flatnonzero(np.isfinite(via))
+        if present.size == 0:
+            return []
+        options = np.where(reach_new[present], via[present, None], math.inf)
+        src = present[options.argmin(axis=0)]
+        best = via[src]
+        best[~reach_new[src, states]] = math.inf
         reached = np.flatnonzero(np.isfinite(best))
         if reached.size == 0:
             return []
@@ -300,7 +306,7 @@ class ProductTree:
     def _rewire(self, new: list[int], near: np.ndarray, d: np.ndarray) -> list[int]:
         """Reparent neighbour nodes through the new nodes where cheaper, and lift the new
         nodes' successor states onto neighbour points that lack them; returns lifted nodes."""
-        reach = self.table.reach[self.label_ids[near]]
+        labels = self.label_ids[near]
         near_l = near.tolist()
         lifted: list[int] = []
         for nid_new in new:
@@ -310,7 +316,10 @@ class ProductTree:
             current = np.where(nodes >= 0, self.cost[nodes], math.inf)
             if not self.lift:
                 current = np.where(nodes >= 0, current, -math.inf)
-            rows, cols = np.nonzero(reach[:, q2, :] & (through[:, None] < current - _EPS))
+            # (k, Q) successors of q2 only: (k, Q, Q) would be large for an automaton of a
+            # finite any-order task (2^goals states).
+            reach = self.table.reach[labels, q2, :]
+            rows, cols = np.nonzero(reach & (through[:, None] < current - _EPS))
             for i, q in zip(rows.tolist(), cols.tolist(), strict=True):
                 m = int(nodes[i, q])
                 c = float(through[i])
