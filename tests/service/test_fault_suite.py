@@ -158,10 +158,15 @@ def test_database_outage_mid_training(proxied: Cluster) -> None:
     another process) progress writes wait for the lock, and a job whose heartbeat went stale
     meanwhile is reclaimed and resumes from its checkpoint. Either way the mission completes,
     nothing is written twice."""
-    row = scenarios.database_outage(proxied, replace(TEST, budget=600))
+    # a budget that outlasts the outage even on an idle machine (up to 100 steps a second)
+    row = scenarios.database_outage(proxied, replace(TEST, budget=2500))
     assert_recovered(row, proxied)
     if proxied.kind == "redis-postgresql":
-        assert row.attempts == row.tokens, row  # not reclaimed: the same attempts finished
+        kept = [k for k in row.tokens if row.attempts[k] == row.tokens[k]]
+        reused = [k for k in row.tokens if f"sub-task {k}: result reused" in row.notes]
+        # not reclaimed while training on: the same attempts finished (a job that ended during
+        # the outage could not record it; its next attempt took the stored result)
+        assert kept and sorted(kept + reused) == sorted(row.tokens), row
         assert row.notes[0] != "0 checkpoint files written during the outage", row
 
 
