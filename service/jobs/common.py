@@ -209,7 +209,8 @@ def open_run(settings: Settings, mission_id: str, document: Mapping[str, Any]) -
     key = (str(settings.artifact_dir), mission_id)
     run = _runs.get(key)
     if run is None:
-        run = MissionRun.open(document, mission_dir(settings, mission_id))
+        folder = mission_dir(settings, mission_id)
+        run = MissionRun.open(document, folder, limits=settings.admission_limits())
         _runs[key] = run
         while len(_runs) > OPEN_RUNS:
             _runs.popitem(last=False)
