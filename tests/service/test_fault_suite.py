@@ -167,8 +167,9 @@ def test_database_outage_mid_training(proxied: Cluster) -> None:
         kept = [k for k in row.tokens if row.attempts[k] == row.tokens[k]]
         reused = [k for k in row.tokens if f"sub-task {k}: result reused" in row.notes]
         # not reclaimed while training on: the same attempts finished (a job that ended during
-        # the outage could not record it; its next attempt took the stored result)
-        assert kept and sorted(kept + reused) == sorted(row.tokens), row
+        # the outage could not record it; its next attempt took the stored result without
+        # training again). On a fast machine every job may end during the outage.
+        assert sorted(kept + reused) == sorted(row.tokens), row
         assert row.notes[0] != "0 checkpoint files written during the outage", row
 
 
