@@ -50,31 +50,74 @@ def run_episode(act: Act, env: gym.Env[Any, Any], obs: Any) -> tuple[dict[str, A
             return info, steps
 
 
+LANE_STRIDE = 1_000_003
+"""Seeds of an evaluation's lanes are this far apart, so that evaluations seeded a few apart
+(periodic, final, mission) never share a lane seed."""
+
+
+def lane_seed(seed: int, lane: int) -> int:
+    """The seed of lane ``lane`` of an evaluation seeded ``seed`` (lane 0: ``seed`` itself)."""
+    return seed + LANE_STRIDE * lane
+
+
+def seed_lanes(envs: Sequence[gym.Env[Any, Any]], seed: int) -> list[Any]:
+    """Reset every lane with its ``lane_seed``: its first observation."""
+    return [env.reset(seed=lane_seed(seed, j))[0] for j, env in enumerate(envs)]
+
+
 def evaluate_subtask(
-    act: Act, env: gym.Env[Any, Any], episodes: int, seed: int
+    act: Act, envs: gym.Env[Any, Any] | Sequence[gym.Env[Any, Any]], episodes: int, seed: int
 ) -> SubtaskEvaluation:
-    """Run ``act`` for ``episodes`` episodes of ``env`` (seeded once with ``seed``)."""
-    successes = collisions = timeouts = 0
+    """Run ``act`` for ``episodes`` episodes of one env, or of copies of one env stepped in
+    lockstep (lanes: ``act`` then gets the batch of the running lanes' observations, one row
+    per lane, and returns one action per row). Lane ``j`` is seeded once with
+    ``lane_seed(seed, j)`` and runs ``(episodes + j) // lanes`` episodes one after another."""
+    batched = not isinstance(envs, gym.Env)
+    lanes: list[gym.Env[Any, Any]] = [envs] if isinstance(envs, gym.Env) else list(envs)
+    lanes = lanes[:episodes]
+    left = [(episodes + j) // len(lanes) for j in range(len(lanes))]
+    obs = seed_lanes(lanes, seed)
+    steps = [0] * len(lanes)
+    outcomes = {"success": 0, "collision": 0, "timeout": 0}
     goal_steps: list[int] = []
-    obs, _ = env.reset(seed=seed)
-    for episode in range(episodes):
-        if episode:
-            obs, _ = env.reset()
-        info, steps = run_episode(act, env, obs)
-        if info.get("is_success"):
-            successes += 1
-            goal_steps.append(steps)
-        elif info.get("collision") or info.get("violation"):
-            collisions += 1
+    running = [j for j in range(len(lanes)) if left[j]]
+    while running:
+        if batched:
+            actions = list(act(np.stack([obs[j] for j in running])))
         else:
-            timeouts += 1
+            actions = [act(obs[j]) for j in running]
+        still: list[int] = []
+        for j, action in zip(running, actions, strict=True):
+            obs[j], _, terminated, truncated, info = lanes[j].step(action)
+            steps[j] += 1
+            if not (terminated or truncated):
+                still.append(j)
+                continue
+            outcome = _outcome(info)
+            outcomes[outcome] += 1
+            if outcome == "success":
+                goal_steps.append(steps[j])
+            steps[j], left[j] = 0, left[j] - 1
+            if left[j]:
+                obs[j], _ = lanes[j].reset()
+                still.append(j)
+        running = still
     return SubtaskEvaluation(
         episodes=episodes,
-        success_rate=successes / episodes,
-        collision_rate=collisions / episodes,
-        timeout_rate=timeouts / episodes,
+        success_rate=outcomes["success"] / episodes,
+        collision_rate=outcomes["collision"] / episodes,
+        timeout_rate=outcomes["timeout"] / episodes,
         mean_steps_to_goal=float(np.mean(goal_steps)) if goal_steps else None,
     )
+
+
+def _outcome(info: dict[str, Any]) -> str:
+    """How a sub-task episode ended, from its last step's info."""
+    if info.get("is_success"):
+        return "success"
+    if info.get("collision") or info.get("violation"):
+        return "collision"
+    return "timeout"
 
 
 @dataclass

@@ -44,7 +44,7 @@ from workers.callbacks import (
     StopOnSuccessRate,
 )
 from workers.checkpoints import prune_checkpoints, save_checkpoint
-from workers.evaluation import SubtaskEvaluation, evaluate_subtask
+from workers.evaluation import SubtaskEvaluation, evaluate_subtask, seed_lanes
 from workers.hooks import CurvePoint, TrainingHooks
 from workers.jobs import SubtaskJob
 from workers.mission import MissionSpec
@@ -198,10 +198,9 @@ class _SubtaskTraining:
             return subtask_env(mission, plan, training, k, evaluation, starts)
 
         self.env = DummyVecEnv([lambda: Monitor(env(False))])
-        self.eval_env = DummyVecEnv([lambda: Monitor(env(True))])
         self.env.seed(job.seed)
-        self.eval_env.seed(job.seed + 1)
-        self.test_env = env(True)
+        self.eval_env = DummyVecEnv([lambda: Monitor(env(True))] * training.eval_lanes)
+        seed_lanes(self.eval_env.envs, job.seed + 1)
         self.folder = out / "checkpoints"
         self.residual = training.env_options(mission.robot.model).guide_feedforward is not None
         self.model, self.resumed = load_agent(
@@ -212,18 +211,19 @@ class _SubtaskTraining:
         )
         hooks.resumed(self.resumed)
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        return self.model.predict(obs, deterministic=True)[0]
+    def act(self, observations: np.ndarray) -> np.ndarray:
+        """The policy's deterministic actions for a batch of observations."""
+        return self.model.predict(observations, deterministic=True)[0]
 
     def final_evaluation(self) -> SubtaskEvaluation:
         """The reported evaluation (``final_eval_episodes`` from the real starts)."""
         episodes = self.job.training.final_eval_episodes
-        return evaluate_subtask(self.act, self.test_env, episodes, seed=self.job.seed + 2)
+        return evaluate_subtask(self.act, self.eval_env.envs, episodes, seed=self.job.seed + 2)
 
     def quick_evaluation(self) -> SubtaskEvaluation:
         """An evaluation of a periodic evaluation's size."""
         episodes = self.job.training.eval_episodes
-        return evaluate_subtask(self.act, self.test_env, episodes, seed=self.job.seed + 1)
+        return evaluate_subtask(self.act, self.eval_env.envs, episodes, seed=self.job.seed + 1)
 
     def start_check(self) -> StartCheck | None:
         """A fresh residual agent is its feed-forward: measure it before any update (None: not
@@ -314,4 +314,3 @@ class _SubtaskTraining:
     def close(self) -> None:
         self.env.close()
         self.eval_env.close()
-        self.test_env.close()

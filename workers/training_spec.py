@@ -202,6 +202,13 @@ class TrainingSpec(BaseModel):
         description="Episodes of each periodic evaluation (50: the early stop at 95 % "
         "then means 48 of 50; 19 of 20 stopped measured runs at 87-89 % over 200 trials).",
     )
+    eval_lanes: int = Field(
+        10,
+        ge=1,
+        le=64,
+        description="Copies of the evaluation env that every evaluation steps in lockstep, "
+        "one batched policy call for all of them (1: one episode after another).",
+    )
     final_eval_episodes: int = Field(
         200, ge=1, description="Episodes of the final sub-task evaluation (200 in the paper)."
     )

@@ -13,7 +13,9 @@ from planner.decompose import lasso_stages
 from planner.plan import MissionPlan
 from workers.evaluation import (
     evaluate_subtask,
+    lane_seed,
     rollout_mission,
+    seed_lanes,
     stage_policies,
 )
 from workers.mission import MissionSpec
@@ -54,6 +56,36 @@ def test_subtask_evaluation_counts_successes_collisions_and_timeouts(
     crash = evaluate_subtask(lambda o: np.array([-1, 0], dtype=np.float32), env, episodes=2, seed=0)
     assert crash.collision_rate == 1.0 and crash.success_rate == 0.0
     env.close()
+
+
+def test_lanes_step_in_lockstep_with_one_batched_call_and_seeds_of_their_own(
+    mission: MissionSpec, plan: MissionPlan
+) -> None:
+    """Lanes: one policy call per step for every running lane, the episodes shared out among
+    them, each lane seeded apart; one lane gives the one-env evaluation's figures."""
+    from workers.training import subtask_env
+
+    lanes = [subtask_env(mission, plan, mission.training, 0, evaluation=True) for _ in range(3)]
+    batches: list[int] = []
+
+    def crash(observations: np.ndarray) -> np.ndarray:
+        batches.append(len(observations))
+        return np.tile(np.array([-1, 0], dtype=np.float32), (len(observations), 1))
+
+    result = evaluate_subtask(crash, lanes, episodes=7, seed=4)
+    assert (result.episodes, result.collision_rate) == (7, 1.0)
+    assert batches[0] == 3 and max(batches) == 3 and min(batches) >= 1
+    firsts = seed_lanes(lanes, 4)
+    assert not np.allclose(firsts[0], firsts[1]) and not np.allclose(firsts[1], firsts[2])
+    assert np.allclose(firsts[1], lanes[1].reset(seed=lane_seed(4, 1))[0])
+
+    one = lanes[0]
+    drive = follower(lambda: one)
+    alone = evaluate_subtask(drive, one, episodes=3, seed=1)
+    batched = evaluate_subtask(lambda rows: drive(rows[0])[None], [one], episodes=3, seed=1)
+    assert batched == alone and alone.success_rate == 1.0
+    for env in lanes:
+        env.close()
 
 
 def test_mission_rollout_of_a_good_policy_is_accepted(
