@@ -53,7 +53,12 @@ REPAIR_RECORD = "handover_repair.json"
 (the bundle holds them too)."""
 
 EVALUATION_SEED = 7
-"""Offset of the reported mission rollouts' seed from ``training.seed``."""
+"""Offset of the reported mission rollouts' seed from ``training.seed``: measured once, by
+``finish``, after every decision."""
+
+SELECTION_SEED = 500
+"""Offset of the seed of the mission rollouts that decide (whether to repair, whether a repair
+round is kept) from ``training.seed``: apart from the reported ones and the probes."""
 
 RunJobs = Callable[[Sequence[SubtaskJob]], list[TrainResult]]
 """Train these jobs (in parallel where the driver can) and return their results in order."""
@@ -140,8 +145,8 @@ class MissionRun:
         self, results: Sequence[TrainResult], seed: int | None = None
     ) -> MissionEvaluation:
         """Whole-mission rollouts of the trained models of ``results`` (one per sub-task),
-        seeded ``seed`` (default: the reported evaluation's, ``training.seed +
-        EVALUATION_SEED``)."""
+        seeded ``seed`` (default: the deciding rollouts', ``training.seed +
+        SELECTION_SEED``)."""
         training, mission = self.training, self.mission
         cls = ALGORITHMS[training.algorithm]
         models = [cls.load(r.model_path, device="cpu") for r in results]
@@ -150,7 +155,7 @@ class MissionRun:
         env = MissionEnv(mission, self.plan, options, training.cycles)
         try:
             act = stage_policies(env.sequence, policies)
-            at = training.seed + EVALUATION_SEED if seed is None else seed
+            at = training.seed + SELECTION_SEED if seed is None else seed
             return rollout_mission(act, env, training.mission_episodes, seed=at)
         finally:
             env.close()
@@ -221,13 +226,18 @@ class MissionRun:
         evaluation: MissionEvaluation,
         repairs: Sequence[RepairRound] = (),
     ) -> RunResult:
-        """Write what was kept (``handover_repair.json``) and ``bundle.zip``."""
+        """Measure the reported whole-mission rollouts of what was kept (``EVALUATION_SEED``;
+        ``evaluation`` is the deciding one) and write ``handover_repair.json`` and
+        ``bundle.zip`` with them."""
         from workers.bundle import write_bundle
 
+        selection = evaluation
+        evaluation = self.evaluate(results, self.training.seed + EVALUATION_SEED)
         record = {
             "rounds": [r.to_json() for r in repairs],
             "results": [r.to_json() for r in results],
             "mission_evaluation": evaluation.to_json(),
+            "selection_evaluation": selection.to_json(),
         }
         write_json(self.folder / REPAIR_RECORD, record, durable=True)
         seeds = [r.seed for r in results]

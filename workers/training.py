@@ -58,6 +58,16 @@ Stopped = Literal["budget", "target", "cancelled"]
 RESULT = "result.json"
 """A finished job's ``TrainResult`` in its folder."""
 
+CONFIRMATIONS = "confirmations.json"
+"""Every confirmation of the early stop so far, ``[[steps, success rate], ...]``: a resumed job
+goes on with the next confirmation seed."""
+
+PERIODIC_SEED, REPORT_SEED, CONFIRMATION_SEED = 1, 2, 3
+"""Offsets from a job's seed of its evaluations' seeds. The periodic evaluations (and the start
+check's quick one) and the confirmations (confirmation ``n`` at ``CONFIRMATION_SEED + n``)
+decide: the early stop and the kept policy. The final evaluation at ``REPORT_SEED`` is run once,
+after every decision, and decides nothing: it is the one reported."""
+
 
 @dataclass
 class TrainResult:
@@ -80,8 +90,13 @@ class TrainResult:
     curve: list[tuple[int, float]] = field(default_factory=list)
     """``(steps, success rate)`` of every periodic evaluation (and of the start check at step 0
     of a residual agent, ``workers.residual``)."""
+    confirmations: list[tuple[int, float]] = field(default_factory=list)
+    """``(steps, success rate)`` of every confirmation of the early stop (``final_eval_episodes``
+    each, seeds of their own), failed ones included; the last one of a job stopped at the
+    target is the one that passed."""
     final: dict[str, Any] | None = None
-    """``SubtaskEvaluation.to_json()`` over ``final_eval_episodes`` (None when cancelled)."""
+    """``SubtaskEvaluation.to_json()`` over ``final_eval_episodes`` on the report seed, measured
+    once after training (None when cancelled)."""
     seconds: float = 0.0
     """Wall time of this call."""
     repairs: int = 0
@@ -91,12 +106,14 @@ class TrainResult:
     def to_json(self) -> dict[str, Any]:
         out = asdict(self)
         out["curve"] = [list(p) for p in self.curve]
+        out["confirmations"] = [list(p) for p in self.confirmations]
         return out
 
     @classmethod
     def from_json(cls, doc: dict[str, Any]) -> TrainResult:
         doc = dict(doc)
-        doc["curve"] = [(int(s), float(r)) for s, r in doc.get("curve", [])]
+        for key in ("curve", "confirmations"):
+            doc[key] = [(int(s), float(r)) for s, r in doc.get(key, [])]
         return cls(**doc)
 
 
@@ -171,12 +188,21 @@ def stored_result(folder: Path) -> TrainResult | None:
 
 def _finished(result: TrainResult, training: TrainingSpec) -> bool:
     """Whether a stored result answers ``training``: its budget was spent, or it stopped at
-    the target and its final evaluation reaches it (a result below a raised target, or short
-    of a raised budget, trains on)."""
+    the target and the confirmation that stopped it reaches it (a result below a raised
+    target, or short of a raised budget, trains on; the reported evaluation decides nothing)."""
     if result.steps >= training.n_timesteps:
         return True
-    rate = (result.final or {}).get("success_rate")
-    return result.stopped == "target" and (rate is None or rate >= training.target_success)
+    passed = result.confirmations[-1][1] if result.confirmations else None
+    return result.stopped == "target" and (passed is None or passed >= training.target_success)
+
+
+def _stored_confirmations(folder: Path) -> list[tuple[int, float]]:
+    """The confirmations an earlier attempt recorded in ``folder`` (none if unreadable)."""
+    path = folder / CONFIRMATIONS
+    try:
+        return [(int(s), float(r)) for s, r in json.loads(path.read_text())]
+    except (OSError, ValueError, TypeError):
+        return []
 
 
 class _SubtaskTraining:
@@ -200,7 +226,7 @@ class _SubtaskTraining:
         self.env = DummyVecEnv([lambda: Monitor(env(False))])
         self.env.seed(job.seed)
         self.eval_env = DummyVecEnv([lambda: Monitor(env(True))] * training.eval_lanes)
-        seed_lanes(self.eval_env.envs, job.seed + 1)
+        seed_lanes(self.eval_env.envs, job.seed + PERIODIC_SEED)
         self.folder = out / "checkpoints"
         self.residual = training.env_options(mission.robot.model).guide_feedforward is not None
         self.model, self.resumed = load_agent(
@@ -210,6 +236,7 @@ class _SubtaskTraining:
             configure(str(out / "logs" / f"run_{self.resumed}"), ["csv", "tensorboard"])
         )
         hooks.resumed(self.resumed)
+        self.confirmations = [c for c in _stored_confirmations(out) if c[0] <= self.resumed]
 
     def act(self, observations: np.ndarray) -> np.ndarray:
         """The policy's deterministic actions for a batch of observations."""
@@ -218,12 +245,25 @@ class _SubtaskTraining:
     def final_evaluation(self) -> SubtaskEvaluation:
         """The reported evaluation (``final_eval_episodes`` from the real starts)."""
         episodes = self.job.training.final_eval_episodes
-        return evaluate_subtask(self.act, self.eval_env.envs, episodes, seed=self.job.seed + 2)
+        return self.evaluation(episodes, self.job.seed + REPORT_SEED)
+
+    def confirmation(self) -> SubtaskEvaluation:
+        """The next confirmation of the early stop (``final_eval_episodes``, a seed of its
+        own each), recorded in ``confirmations``."""
+        seed = self.job.seed + CONFIRMATION_SEED + len(self.confirmations)
+        check = self.evaluation(self.job.training.final_eval_episodes, seed)
+        self.confirmations.append((int(self.model.num_timesteps), check.success_rate))
+        if self.hooks.may_write():
+            write_json(self.out / CONFIRMATIONS, [list(c) for c in self.confirmations])
+        return check
 
     def quick_evaluation(self) -> SubtaskEvaluation:
-        """An evaluation of a periodic evaluation's size."""
+        """An evaluation of a periodic evaluation's size (the start check's)."""
         episodes = self.job.training.eval_episodes
-        return evaluate_subtask(self.act, self.eval_env.envs, episodes, seed=self.job.seed + 1)
+        return self.evaluation(episodes, self.job.seed + PERIODIC_SEED)
+
+    def evaluation(self, episodes: int, seed: int) -> SubtaskEvaluation:
+        return evaluate_subtask(self.act, self.eval_env.envs, episodes, seed)
 
     def start_check(self) -> StartCheck | None:
         """A fresh residual agent is its feed-forward: measure it before any update (None: not
@@ -231,7 +271,7 @@ class _SubtaskTraining:
         if not self.residual or self.resumed != 0 or self.job.warm_start is not None:
             return None
         target = self.job.training.target_success
-        check = start_check(self.quick_evaluation, self.final_evaluation, target, self.out)
+        check = start_check(self.quick_evaluation, self.confirmation, target, self.out)
         episodes = self.job.training.eval_episodes
         self.hooks.curve_point(CurvePoint(0, episodes, check.success_rate))
         return check
@@ -240,7 +280,7 @@ class _SubtaskTraining:
         training, hooks, model = self.job.training, self.hooks, self.model
         start = self.start_check()
         begun = recorded_start(self.out)
-        stopper = StopOnSuccessRate(training.target_success, self.final_evaluation)
+        stopper = StopOnSuccessRate(training.target_success, self.confirmation)
         evaluation = ResumableEvalCallback(
             self.eval_env,
             n_eval_episodes=training.eval_episodes,
@@ -294,6 +334,7 @@ class _SubtaskTraining:
             resumed_from=self.resumed,
             stopped=stopped,
             curve=evaluation.success_curve,
+            confirmations=list(self.confirmations),
         )
         if stopped == "budget":
             model, result.policy_steps = keep_best_policy(model, evaluation, training, self.env)
@@ -303,10 +344,7 @@ class _SubtaskTraining:
         if stopped != "cancelled":
             final = self.out / "model.zip"
             save_with(final, model.save)
-            confirmed = stopper.confirmed if stopped == "target" else None
-            if met_at_start and start is not None:
-                confirmed = start.confirmed
-            result.final = (confirmed or self.final_evaluation()).to_json()
+            result.final = self.final_evaluation().to_json()
             result.model_path = str(final)
         hooks.progress(steps, evaluation.last_success_rate, training.n_timesteps)
         return result

@@ -111,20 +111,21 @@ def assemble_step(settings: Settings, mission_id: str, dispatch: Dispatch) -> st
             if outcome is not None:
                 return outcome
         out = run.finish(results, evaluation, judged)
+        reported = out.evaluation
         with db.session() as session:
             if not _holds(session, step):
                 return "lost"
-            repository.set_result(session, mission_id, evaluation.to_json(), str(out.bundle))
+            repository.set_result(session, mission_id, reported.to_json(), str(out.bundle))
             repository.set_repairs(
-                session, mission_id, evaluation.to_json(), [r.to_json() for r in judged]
+                session, mission_id, reported.to_json(), [r.to_json() for r in judged]
             )
             repository.record_evaluation(
                 session,
                 mission_id,
                 None,
                 steps=sum(r.steps for r in out.results),
-                episodes=evaluation.episodes,
-                success_rate=evaluation.success_rate,
+                episodes=reported.episodes,
+                success_rate=reported.success_rate,
             )
             repository.set_status(session, mission_id, MissionStatus.done)
         return "done"

@@ -4,6 +4,7 @@ warm-started job trains for real from a finished job's policy and replay buffer.
 from __future__ import annotations
 
 import dataclasses
+import json
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -26,7 +27,7 @@ from workers.handover_repair import (
 )
 from workers.jobs import SubtaskJob
 from workers.mission import MissionSpec
-from workers.run import EVALUATION_SEED, MissionRun
+from workers.run import EVALUATION_SEED, SELECTION_SEED, MissionRun
 from workers.training import TrainingError, TrainResult, subtask_env, train_subtask
 from workers.training_spec import TrainingSpec
 
@@ -122,8 +123,8 @@ def test_a_merged_result_counts_both_trainings(tmp_path: Path) -> None:
 
 
 class ScriptedRun(MissionRun):
-    """A run whose rollouts are scripted: the reported evaluation after each round is the next
-    of ``rates``; sub-task 1 always fails in the probe."""
+    """A run whose rollouts are scripted: the deciding evaluation after each round is the next
+    of ``rates``; sub-task 1 always fails in the probe; the reported one (``finish``) is 0.25."""
 
     def __init__(self, mission: MissionSpec, plan: MissionPlan, folder: Path, rates: list[float]):
         super().__init__(mission, plan, folder)
@@ -133,10 +134,12 @@ class ScriptedRun(MissionRun):
     def evaluate(
         self, results: Sequence[TrainResult], seed: int | None = None
     ) -> MissionEvaluation:
-        reported = self.mission.training.seed + EVALUATION_SEED
-        self.seeds.append(reported if seed is None else seed)
+        deciding = self.mission.training.seed + SELECTION_SEED
+        self.seeds.append(deciding if seed is None else seed)
         if seed is None:
             return evaluation(next(self.after), {"1": {"collision": 1}})
+        if seed == self.mission.training.seed + EVALUATION_SEED:
+            return evaluation(0.25, {})
         return evaluation(0.0, {"1": {"collision": 1}})
 
 
@@ -169,7 +172,31 @@ def test_repair_rounds_are_kept_only_while_the_mission_improves(
     ]
     assert final.success_rate == 0.7 and results[1].repairs == 1
     assert results[1].model_path.endswith("handover_1/model.zip") and results[0].repairs == 0
-    assert 7 not in seeds[::2]  # probes never reuse the reported rollouts' seed
+    reported = mission.training.seed + EVALUATION_SEED
+    assert reported not in seeds  # no decision used the reported rollouts' seed
+    assert len(set(seeds[::2])) == 2 and mission.training.seed + SELECTION_SEED not in seeds[::2]
+
+
+def test_finish_reports_rollouts_measured_after_every_decision(
+    mission: MissionSpec, plan: MissionPlan, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import workers.bundle
+
+    written: list[MissionEvaluation] = []
+
+    def bundle(path: Path, *args: object) -> Path:
+        written.append(args[3])  # type: ignore[arg-type]
+        return path
+
+    monkeypatch.setattr(workers.bundle, "write_bundle", bundle)
+    run = ScriptedRun(mission, plan, tmp_path, [])
+    results = [result(k, tmp_path) for k in range(4)]
+    done = run.finish(results, evaluation(0.95, {}), [])
+    assert run.seeds == [mission.training.seed + EVALUATION_SEED]
+    assert done.evaluation.success_rate == 0.25 and written == [done.evaluation]
+    record = json.loads((tmp_path / "handover_repair.json").read_text())
+    assert record["mission_evaluation"]["success_rate"] == 0.25
+    assert record["selection_evaluation"]["success_rate"] == 0.95
 
 
 def test_repair_stops_at_the_mission_target(

@@ -188,13 +188,47 @@ def test_a_periodic_success_stops_only_when_the_confirmation_reaches_the_target(
     env.close()
 
 
+def test_the_reported_evaluation_is_measured_once_after_every_decision_on_a_seed_of_its_own(
+    mission: MissionSpec, plan: MissionPlan, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Every periodic evaluation reaches the target; the first confirmation fails, the second
+    passes and stops training; the reported evaluation is run once at the end on the report
+    seed, which no decision used, and its rate is reported even below the target."""
+    import workers.training as training_module
+
+    asked: list[tuple[int, int]] = []
+    rates = iter([0.5, 1.0, 0.3])
+
+    def scripted(act: Any, envs: Any, episodes: int, seed: int) -> SubtaskEvaluation:
+        asked.append((episodes, seed))
+        return SubtaskEvaluation(episodes, next(rates), 0.0, 0.0, None)
+
+    monkeypatch.setattr(training_module, "evaluate_subtask", scripted)
+    monkeypatch.setattr(ResumableEvalCallback, "last_success_rate", property(lambda _: 1.0))
+    spec = job(mission, n_timesteps=400, eval_freq=100, final_eval_episodes=20)
+    result = train_subtask(mission, plan, spec, tmp_path)
+    assert result.stopped == "target" and result.steps == 200
+    assert result.confirmations == [(100, 0.5), (200, 1.0)]
+    assert result.final is not None and result.final["success_rate"] == 0.3
+    report = spec.seed + training_module.REPORT_SEED
+    assert [seed for _, seed in asked] == [
+        spec.seed + training_module.CONFIRMATION_SEED,
+        spec.seed + training_module.CONFIRMATION_SEED + 1,
+        report,
+    ]
+    assert report != spec.seed + training_module.PERIODIC_SEED
+    stored = json.loads((tmp_path / "confirmations.json").read_text())
+    assert stored == [[100, 0.5], [200, 1.0]]
+
+
 def test_a_stored_result_below_a_raised_target_trains_on(
     mission: MissionSpec, plan: MissionPlan, tmp_path: Path
 ) -> None:
     first = train_subtask(mission, plan, job(mission), tmp_path)
     stored = json.loads((tmp_path / "result.json").read_text())
     stored["stopped"] = "target"
-    stored["final"]["success_rate"] = 0.5
+    stored["confirmations"] = [[first.steps, 0.5]]  # the one that stopped it
+    stored["final"]["success_rate"] = 0.9  # reported: decides nothing
     (tmp_path / "result.json").write_text(json.dumps(stored))
     bigger = first.steps + 100
     raised = job(mission, target_success=0.4, n_timesteps=bigger)
