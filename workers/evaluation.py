@@ -39,17 +39,6 @@ class SubtaskEvaluation:
         return asdict(self)
 
 
-def run_episode(act: Act, env: gym.Env[Any, Any], obs: Any) -> tuple[dict[str, Any], int]:
-    """Step ``env`` with ``act`` from ``obs`` (just reset) to the end of the episode; the last
-    step's info and the number of steps."""
-    steps = 0
-    while True:
-        obs, _, terminated, truncated, info = env.step(act(obs))
-        steps += 1
-        if terminated or truncated:
-            return info, steps
-
-
 LANE_STRIDE = 1_000_003
 """Seeds of an evaluation's lanes are this far apart, so that evaluations seeded a few apart
 (periodic, final, mission) never share a lane seed."""
@@ -65,21 +54,32 @@ def seed_lanes(envs: Sequence[gym.Env[Any, Any]], seed: int) -> list[Any]:
     return [env.reset(seed=lane_seed(seed, j))[0] for j, env in enumerate(envs)]
 
 
-def evaluate_subtask(
-    act: Act, envs: gym.Env[Any, Any] | Sequence[gym.Env[Any, Any]], episodes: int, seed: int
-) -> SubtaskEvaluation:
-    """Run ``act`` for ``episodes`` episodes of one env, or of copies of one env stepped in
-    lockstep (lanes: ``act`` then gets the batch of the running lanes' observations, one row
-    per lane, and returns one action per row). Lane ``j`` is seeded once with
-    ``lane_seed(seed, j)`` and runs ``(episodes + j) // lanes`` episodes one after another."""
+Lanes = gym.Env[Any, Any] | Sequence[gym.Env[Any, Any]]
+"""One env, or copies of one env stepped in lockstep (lanes)."""
+
+
+def run_lanes(
+    act: Act,
+    envs: Lanes,
+    episodes: int,
+    seed: int,
+    ended: Callable[[gym.Env[Any, Any], dict[str, Any], int], None],
+    reset: Callable[[np.ndarray], None] | None = None,
+) -> None:
+    """Run ``episodes`` episodes of ``act`` on one env, or on lanes in lockstep (``act`` then
+    gets the batch of the running lanes' observations, one row per lane, and returns one action
+    per row). Lane ``j`` is seeded once with ``lane_seed(seed, j)`` and runs
+    ``(episodes + j) // lanes`` episodes one after another. ``ended(env, info, steps)`` hears
+    every episode's end before its env is reset; ``reset(obs)`` every start."""
     batched = not isinstance(envs, gym.Env)
     lanes: list[gym.Env[Any, Any]] = [envs] if isinstance(envs, gym.Env) else list(envs)
     lanes = lanes[:episodes]
     left = [(episodes + j) // len(lanes) for j in range(len(lanes))]
     obs = seed_lanes(lanes, seed)
+    for first in obs:
+        if reset is not None:
+            reset(first)
     steps = [0] * len(lanes)
-    outcomes = {"success": 0, "collision": 0, "timeout": 0}
-    goal_steps: list[int] = []
     running = [j for j in range(len(lanes)) if left[j]]
     while running:
         if batched:
@@ -93,15 +93,29 @@ def evaluate_subtask(
             if not (terminated or truncated):
                 still.append(j)
                 continue
-            outcome = _outcome(info)
-            outcomes[outcome] += 1
-            if outcome == "success":
-                goal_steps.append(steps[j])
+            ended(lanes[j], info, steps[j])
             steps[j], left[j] = 0, left[j] - 1
             if left[j]:
                 obs[j], _ = lanes[j].reset()
+                if reset is not None:
+                    reset(obs[j])
                 still.append(j)
         running = still
+
+
+def evaluate_subtask(act: Act, envs: Lanes, episodes: int, seed: int) -> SubtaskEvaluation:
+    """Run ``act`` for ``episodes`` episodes of one sub-task env, or of its lanes
+    (``run_lanes``)."""
+    outcomes = {"success": 0, "collision": 0, "timeout": 0}
+    goal_steps: list[int] = []
+
+    def ended(_env: gym.Env[Any, Any], info: dict[str, Any], steps: int) -> None:
+        outcome = _outcome(info)
+        outcomes[outcome] += 1
+        if outcome == "success":
+            goal_steps.append(steps)
+
+    run_lanes(act, envs, episodes, seed, ended)
     return SubtaskEvaluation(
         episodes=episodes,
         success_rate=outcomes["success"] / episodes,
@@ -160,41 +174,43 @@ class MissionEvaluation:
 
 def rollout_mission(
     act: Act,
-    env: MissionEnv,
+    envs: MissionEnv | Sequence[MissionEnv],
     episodes: int,
     seed: int = 0,
     keep_trails: int = 3,
     reset: Callable[[np.ndarray], None] | None = None,
 ) -> MissionEvaluation:
-    """Roll out ``act`` on ``env`` for ``episodes`` episodes (seeded once with ``seed``);
-    ``reset(obs)`` is called at the start of each episode."""
+    """Roll out ``act`` on one ``MissionEnv`` or on its lanes (``run_lanes``) for ``episodes``
+    episodes; ``reset(obs)`` is called at the start of each episode."""
     counts = {"collision": 0, "timeout": 0, "rejected": 0}
     failures: dict[str, dict[str, int]] = {}
     lengths: list[int] = []
     trails: list[list[list[float]]] = []
     handovers: dict[int, list[Pose]] = {}
     successes = 0
-    for episode in range(episodes):
-        obs, _ = env.reset(seed=seed if episode == 0 else None)
-        if reset is not None:
-            reset(obs)
-        info, steps = run_episode(act, env, obs)
-        if episode < keep_trails:
-            trails.append([list(p) for p in env.trail])
-        for k, pose in env.handovers:
+
+    def ended(lane: gym.Env[Any, Any], info: dict[str, Any], steps: int) -> None:
+        nonlocal successes
+        assert isinstance(lane, MissionEnv)
+        if len(trails) < keep_trails:
+            trails.append([list(p) for p in lane.trail])
+        for k, pose in lane.handovers:
             handovers.setdefault(k, []).append(pose)
         if info["is_success"]:
             successes += 1
             lengths.append(steps)
-            continue
+            return
         kind = str(info["failure"])
         counts[kind] += 1
         where = "mission" if info["failed_subtask"] is None else str(info["failed_subtask"])
         failures.setdefault(where, {}).setdefault(kind, 0)
         failures[where][kind] += 1
+
+    run_lanes(act, envs, episodes, seed, ended, reset)
+    one = envs if isinstance(envs, MissionEnv) else envs[0]
     return MissionEvaluation(
         episodes=episodes,
-        cycles=env.cycles,
+        cycles=one.cycles,
         success_rate=successes / episodes,
         collision_rate=counts["collision"] / episodes,
         timeout_rate=counts["timeout"] / episodes,
@@ -208,10 +224,25 @@ def rollout_mission(
 
 def stage_policies(sequence: Sequence[int], policies: Sequence[Act]) -> Act:
     """A concatenated policy over ``MissionEnv`` observations: the last entry is the stage,
-    which picks the sub-policy ``policies[sequence[stage]]`` for the rest."""
+    which picks the sub-policy ``policies[sequence[stage]]`` for the rest. It takes one
+    observation, or a batch (one row per lane: each sub-policy is called once on its rows)."""
+    order = np.asarray(sequence)
+
+    def stage_of(obs: np.ndarray) -> np.ndarray:
+        return order[np.minimum(np.rint(obs[..., -1]).astype(int), len(sequence) - 1)]
 
     def act(obs: np.ndarray) -> np.ndarray:
-        stage = min(round(float(obs[-1])), len(sequence) - 1)
-        return policies[sequence[stage]](obs[:-1])
+        if obs.ndim == 1:
+            return policies[int(stage_of(obs))](obs[:-1])
+        which = stage_of(obs)
+        actions: np.ndarray | None = None
+        for k in np.unique(which):
+            rows = which == k
+            part = np.asarray(policies[int(k)](obs[rows, :-1]))
+            if actions is None:
+                actions = np.empty((len(obs), *part.shape[1:]), dtype=part.dtype)
+            actions[rows] = part
+        assert actions is not None
+        return actions
 
     return act

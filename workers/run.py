@@ -152,13 +152,15 @@ class MissionRun:
         models = [cls.load(r.model_path, device="cpu") for r in results]
         policies = [(lambda obs, m=m: m.predict(obs, deterministic=True)[0]) for m in models]
         options = training.eval_env_options(mission.robot.model)
-        env = MissionEnv(mission, self.plan, options, training.cycles)
+        lanes = min(training.eval_lanes, training.mission_episodes)
+        envs = [MissionEnv(mission, self.plan, options, training.cycles) for _ in range(lanes)]
         try:
-            act = stage_policies(env.sequence, policies)
+            act = stage_policies(envs[0].sequence, policies)
             at = training.seed + SELECTION_SEED if seed is None else seed
-            return rollout_mission(act, env, training.mission_episodes, seed=at)
+            return rollout_mission(act, envs, training.mission_episodes, seed=at)
         finally:
-            env.close()
+            for env in envs:
+                env.close()
 
     def needs_repair(self, evaluation: MissionEvaluation, rounds_done: int) -> bool:
         """Whether another round of hand-over repair is due: the mission is below

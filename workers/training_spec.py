@@ -206,8 +206,9 @@ class TrainingSpec(BaseModel):
         10,
         ge=1,
         le=64,
-        description="Copies of the evaluation env that every evaluation steps in lockstep, "
-        "one batched policy call for all of them (1: one episode after another).",
+        description="Copies of the evaluation env (and of the mission env, for whole-mission "
+        "rollouts) that every evaluation steps in lockstep, one batched policy call for all of "
+        "them (1: one episode after another).",
     )
     final_eval_episodes: int = Field(
         200, ge=1, description="Episodes of the final sub-task evaluation (200 in the paper)."

@@ -146,6 +146,39 @@ def test_stage_policies_pick_the_stage_sub_policy() -> None:
     assert calls == [0, 1, 2, 3, 2, 3]
 
 
+def test_stage_policies_call_each_sub_policy_once_on_its_rows_of_a_batch() -> None:
+    calls: list[tuple[int, int]] = []
+
+    def policy(k: int) -> Callable[[np.ndarray], np.ndarray]:
+        def act(obs: np.ndarray) -> np.ndarray:
+            calls.append((k, len(obs)))
+            assert obs.shape[1:] == (3,)
+            return np.full((len(obs), 2), float(k))
+
+        return act
+
+    act = stage_policies([0, 1, 0], [policy(k) for k in range(2)])
+    batch = np.array([[0.0, 0, 0, s] for s in (0, 1, 2, 1, 5)])
+    assert act(batch)[:, 0].tolist() == [0.0, 1.0, 0.0, 1.0, 0.0]  # stage 5: the last one
+    assert sorted(calls) == [(0, 3), (1, 2)]
+
+
+def test_mission_rollouts_in_lanes_count_every_episode_and_keep_every_hand_over(
+    mission: MissionSpec, plan: MissionPlan
+) -> None:
+    options = mission.training.eval_env_options(mission.robot.model)
+    lanes = [MissionEnv(mission, plan, options, cycles=1) for _ in range(3)]
+    parked = stage_policies(lanes[0].sequence, [lambda o: np.zeros((len(o), 2))] * 2)
+    result = rollout_mission(parked, lanes, episodes=5, seed=2, keep_trails=4)
+    assert (result.episodes, result.timeout_rate) == (5, 1.0)
+    assert result.failures == {"0": {"timeout": 5}} and len(result.trails) == 4
+    assert len(result.handovers[0]) == 5  # sub-task 0 begun once per rollout
+    starts = {tuple(trail[0]) for trail in result.trails}
+    assert len(starts) == 4  # lanes seeded apart, episodes of a lane go on from its seed
+    for env in lanes:
+        env.close()
+
+
 def test_evaluation_options_start_at_the_real_start_with_noise() -> None:
     spec = tiny_mission(env={"curriculum": 0.7, "stall_steps": 30}, eval_start_noise=0.1)
     options = spec.training.eval_env_options(spec.robot.model)
