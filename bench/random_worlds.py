@@ -42,10 +42,16 @@ def forest(rng: np.random.Generator) -> tuple[list[float], list[Document]]:
     return [size, size], [_ball(c, float(r)) for c, r in zip(centres, radii, strict=True)]
 
 
-def maze(rng: np.random.Generator) -> tuple[list[float], list[Document]]:
-    """A perfect maze (randomised depth-first search) of n x n cells, 2.5 to 5 m each."""
-    n = int(rng.integers(4, 9))
-    cell = float(rng.uniform(2.5, 5.0))
+def maze(
+    rng: np.random.Generator,
+    n: int | None = None,
+    cell: float | None = None,
+    wall: float = WALL,
+) -> tuple[list[float], list[Document]]:
+    """A perfect maze (randomised depth-first search) of n x n cells (4 to 8 unless given),
+    2.5 to 5 m each unless given, walls ``wall`` thick."""
+    n = int(rng.integers(4, 9)) if n is None else n
+    cell = float(rng.uniform(2.5, 5.0)) if cell is None else cell
     size = n * cell
     open_walls: set[tuple[int, int, int, int]] = set()
     seen = {(0, 0)}
@@ -69,10 +75,10 @@ def maze(rng: np.random.Generator) -> tuple[list[float], list[Document]]:
         for j in range(n):
             if i + 1 < n and (i, j, i + 1, j) not in open_walls:  # wall between columns i, i+1
                 x = (i + 1) * cell
-                walls.append(_box([x - WALL / 2, j * cell], [x + WALL / 2, (j + 1) * cell]))
+                walls.append(_box([x - wall / 2, j * cell], [x + wall / 2, (j + 1) * cell]))
             if j + 1 < n and (i, j, i, j + 1) not in open_walls:
                 y = (j + 1) * cell
-                walls.append(_box([i * cell, y - WALL / 2], [(i + 1) * cell, y + WALL / 2]))
+                walls.append(_box([i * cell, y - wall / 2], [(i + 1) * cell, y + wall / 2]))
     return [size, size], walls
 
 

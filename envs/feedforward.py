@@ -3,13 +3,16 @@ carrot that the policy's action corrects; :class:`ActionShaping` applies it, and
 ``EnvOptions.min_forward``, to every action of the env.
 
 The carrot is the centre of the r-ball ``AHEAD`` balls past the robot's progress index on the
-current leg (the leg's last ball at most). For robots commanded by a world-frame velocity or
-acceleration (point, quadrotor) the env adds ``gain`` times the unit vector toward it to the
-policy's action; for robots driven by (forward, turn) actions (unicycle, racecar) it adds
-``gain`` times a turn command toward it (proportional to the heading error, full at 90 degrees
-or more) to the turn component. Sums are clipped to ``[-1, 1]``. Following the guide is then
-what a zero action does; the policy learns the correction around boxes and into the goal
-(residual policy learning, Silver et al. 2018; Johannink et al. 2019), instead of first having
+current leg (the leg's last ball at most). For robots commanded by a world-frame velocity
+(quadrotor) the env adds ``gain`` times the unit vector toward it to the policy's action; for
+the point robot, commanded by an acceleration, ``gain`` times the command that brings its
+velocity toward ``max_speed`` along that unit vector (the velocity error over ``max_speed``:
+full acceleration from rest, none at top speed toward the carrot, braking when it moves away);
+for robots driven by (forward, turn) actions (unicycle, racecar) ``gain`` times a turn command
+toward it (proportional to the heading error, full at 90 degrees or more) to the turn
+component. Sums are clipped to ``[-1, 1]``. Following the guide is then what a zero action
+does; the policy learns the correction around boxes and into the goal (residual policy
+learning, Silver et al. 2018; Johannink et al. 2019), instead of first having
 to discover motion at all.
 
 For robots with a minimum turning radius (racecar) ``EnvOptions.feedforward_law = "pursuit"``
@@ -33,6 +36,7 @@ import numpy as np
 from envs.errors import EnvConfigError
 from envs.observation import HEADING_FEATURES
 from envs.robots.base import Robot, wrap_angle
+from envs.robots.point import PointParams
 from planner.geometry.drivable import arc_lengths
 from planner.guidance import Guide
 
@@ -65,6 +69,24 @@ def carrot_direction(
 def with_feedforward(action: np.ndarray, gain: float, direction: np.ndarray) -> np.ndarray:
     """``action`` plus ``gain`` times ``direction``, clipped to ``[-1, 1]``."""
     return np.clip(np.asarray(action, dtype=float) + gain * direction, -1.0, 1.0)
+
+
+def velocity_command(
+    robot: Robot, track: Track, index: int, x: Sequence[float] | np.ndarray
+) -> np.ndarray:
+    """Acceleration command of a double integrator (the point robot) toward moving at its top
+    speed at the point of ``track`` one braking length ahead (``max_speed^2 / max_accel``:
+    twice its stopping distance, so it cuts no corner wider than it can brake): the velocity
+    error over ``max_speed``."""
+    params = robot.params
+    assert isinstance(params, PointParams)
+    top = params.max_speed
+    ahead = top * top / params.max_accel
+    offset = pursuit_target(track, index, x, ahead) - np.asarray(x, dtype=float)
+    norm = float(np.linalg.norm(offset))
+    direction = offset / norm if norm > 1e-9 else np.zeros_like(offset)
+    velocity = np.asarray(robot.state, dtype=float)[len(direction) :]
+    return np.asarray(direction - velocity / top)
 
 
 def steering_toward(heading: float, direction: np.ndarray) -> float:
@@ -200,6 +222,8 @@ class ActionShaping:
                 turn = pursuit_turn(robot.heading(), x, target, self.pursuit)
             else:
                 toward = carrot_direction(guide.centers, index, x)
+                if robot.name == "point":
+                    toward = velocity_command(robot, track, index, x)
                 if robot.name in WORLD_FRAME_ROBOTS:
                     return with_feedforward(a, self.gain, toward)
                 turn = steering_toward(robot.heading(), toward)

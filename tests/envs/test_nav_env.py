@@ -507,17 +507,21 @@ def test_min_forward_maps_the_forward_command(envs: list[NavEnv]) -> None:
 def test_guide_feedforward_drives_toward_the_carrot_and_the_policy_corrects_it(
     envs: list[NavEnv],
 ) -> None:
-    from envs.feedforward import AHEAD, carrot_direction
+    from envs.feedforward import AHEAD, carrot_direction, pursuit_target
 
     env = build_env("point", 2, guide_feedforward=0.5)
     envs.append(env)
     env.reset(seed=0, options={"position": START_2D})
     centres = env.legs[0].guide.centers
-    direction = carrot_direction(centres, -1, START_2D)
-    assert np.linalg.norm(direction) == pytest.approx(1.0)
+    carrot = carrot_direction(centres, -1, START_2D)
+    assert np.linalg.norm(carrot) == pytest.approx(1.0)
     assert np.allclose(
-        direction * np.linalg.norm(centres[AHEAD - 1] - START_2D), centres[AHEAD - 1] - START_2D
+        carrot * np.linalg.norm(centres[AHEAD - 1] - START_2D), centres[AHEAD - 1] - START_2D
     )
+    # the point robot (an acceleration command) heads for the point of the guide one braking
+    # length ahead (max_speed^2 / max_accel = 0.5 m), from rest at full acceleration
+    target = pursuit_target(env.legs[0].track, -1, START_2D, 0.5)
+    direction = (target - START_2D) / np.linalg.norm(target - START_2D)
     env.step(np.zeros(2))  # a zero action accelerates along the feed-forward
     velocity = env.robot.state[2:]
     assert np.allclose(velocity / np.linalg.norm(velocity), direction, atol=1e-6)

@@ -202,7 +202,7 @@ def test_guide_rewards_end_a_stall_with_the_crash_reward_and_every_mode_sees_ray
 
 
 def test_measured_training_defaults_apply_by_robot_and_yield_to_the_mission() -> None:
-    training = tiny_mission().training
+    training = tiny_mission().training.model_copy(update={"env": {}})  # every default
     car, point = training.env_options("unicycle"), training.env_options("point")
     assert (car.curriculum, car.min_forward) == (0.7, 0.2)
     assert (point.curriculum, point.min_forward) == (0.7, None)
@@ -215,7 +215,7 @@ def test_measured_training_defaults_apply_by_robot_and_yield_to_the_mission() ->
     ) == (0.0, None)
     quad = training.env_options("quadrotor")
     assert quad.guide_feedforward == 1.0
-    assert point.guide_feedforward is None and car.guide_feedforward is None
+    assert point.guide_feedforward == 1.0 and car.guide_feedforward is None
     racecar = training.eval_env_options("racecar")  # evaluated as trained: same meaning
     assert (racecar.drivable_guide, racecar.guide_feedforward) == (1.45, 1.0)
     assert (racecar.feedforward_law, racecar.progress_window) == ("pursuit", 2)
@@ -223,6 +223,6 @@ def test_measured_training_defaults_apply_by_robot_and_yield_to_the_mission() ->
     off = tiny_mission(env={"guide_feedforward": None}).training.env_options("quadrotor")
     assert off.guide_feedforward is None
     for mode in ("rrt-paper", "ned", "tl"):  # the baselines do not follow the guide
-        baseline = tiny_mission(reward={"mode": mode}).training
+        baseline = tiny_mission(reward={"mode": mode}).training.model_copy(update={"env": {}})
         assert baseline.env_options("quadrotor").guide_feedforward is None
         assert baseline.env_options("racecar").drivable_guide is None
