@@ -95,8 +95,9 @@ ACTIVATIONS = ("relu", "tanh", "elu", "leaky_relu", "gelu", "silu")
 DEFAULT_POLICY_KWARGS: dict[str, Any] = {"net_arch": [64, 64, 64], "activation_fn": "relu"}
 """Actor and critic MLP [64, 64, 64] with ReLU, as in Cai et al.; keys given in
 ``hyperparams.policy_kwargs`` override these one by one. Every other hyperparameter not given
-takes stable-baselines3's default for the algorithm, except ``buffer_size`` (off-policy):
-``n_timesteps``, since a larger buffer never fills and every checkpoint stores it whole."""
+takes stable-baselines3's default for the algorithm, except for the off-policy ones
+``buffer_size``: ``n_timesteps``, since a larger buffer never fills and every checkpoint stores
+it whole, and ``train_freq``: 2 (``workers.agents.OFF_POLICY_TRAIN_FREQ``)."""
 
 
 TRAINING_ENV_DEFAULTS: dict[str, Any] = {"curriculum": 0.7, "rays": 16}

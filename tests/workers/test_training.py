@@ -15,7 +15,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 
 from planner.plan import MissionPlan
 from planner.serialize import plan_from_dict, plan_to_dict
-from workers.agents import keep_best_policy
+from workers.agents import OFF_POLICY_TRAIN_FREQ, keep_best_policy
 from workers.callbacks import ResumableEvalCallback, StopOnSuccessRate
 from workers.evaluation import SubtaskEvaluation
 from workers.jobs import SubtaskJob
@@ -127,7 +127,9 @@ def test_cancel_stops_after_a_checkpoint_and_resumes(
     (out / "checkpoints" / "model_50_steps.zip").write_bytes(b"PK\x03\x04 cut short")
     with pytest.warns(UserWarning, match="model_50_steps.zip"):
         resumed = train_subtask(mission, plan, job(mission, subtask=1, n_timesteps=120), out)
-    assert (resumed.resumed_from, resumed.steps, resumed.stopped) == (1, 120, "budget")
+    assert (resumed.resumed_from, resumed.stopped) == (1, "budget")
+    # SB3 collects train_freq steps between updates: from an odd step it ends one past
+    assert 120 <= resumed.steps < 120 + OFF_POLICY_TRAIN_FREQ
 
 
 def test_same_seed_same_policy(mission: MissionSpec, plan: MissionPlan, tmp_path: Path) -> None:
