@@ -44,7 +44,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.append(str(Path(__file__).resolve().parent))  # after the packages: bench/planner.py
 
-from random_worlds import KINDS, Document, _ball, _box, maze  # noqa: E402
+from random_worlds import KINDS, Document, _ball, maze, scattered_boxes  # noqa: E402
 
 from planner.geometry.world import World  # noqa: E402
 from planner.geometry.world_spec import WorldSpec  # noqa: E402
@@ -80,12 +80,7 @@ def boxes(rng: np.random.Generator) -> tuple[list[float], list[Document]]:
     """A square 2D world of 10 to 60 m with random boxes covering about 12 %."""
     size = float(rng.uniform(10, 60))
     count = int(0.12 * size * size / 2.25) + 1
-    out = []
-    for _ in range(count):
-        w = rng.uniform(0.5, 2.5, size=2)
-        lo = rng.uniform(0, size - w)
-        out.append(_box(lo.tolist(), (lo + w).tolist()))
-    return [size, size], out
+    return [size, size], scattered_boxes(rng, size, count, (0.5, 2.5))
 
 
 def mazes(rng: np.random.Generator) -> tuple[list[float], list[Document]]:

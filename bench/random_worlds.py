@@ -105,13 +105,28 @@ def towers(rng: np.random.Generator) -> tuple[list[float], list[Document]]:
     """A 3D city block: 10 to 60 m square, 10 m high, towers of random footprint and height."""
     size = float(rng.uniform(10, 60))
     count = int(0.12 * size * size / 9.0) + 1
-    towers_ = []
+    return [size, size, 10.0], scattered_boxes(rng, size, count, (1.0, 4.0), (2.0, 9.0))
+
+
+def scattered_boxes(
+    rng: np.random.Generator,
+    size: float,
+    count: int,
+    sides: tuple[float, float],
+    heights: tuple[float, float] | None = None,
+) -> list[Document]:
+    """``count`` boxes of footprint sides drawn from ``sides`` placed at random in a square of
+    ``size``; with ``heights``, standing on the ground (3D) to a height drawn from it."""
+    out = []
     for _ in range(count):
-        w = rng.uniform(1.0, 4.0, size=2)
+        w = rng.uniform(*sides, size=2)
         lo = rng.uniform(0, size - w)
-        h = float(rng.uniform(2.0, 9.0))
-        towers_.append(_box([*lo.tolist(), 0.0], [*(lo + w).tolist(), h]))
-    return [size, size, 10.0], towers_
+        if heights is None:
+            out.append(_box(lo.tolist(), (lo + w).tolist()))
+        else:
+            h = float(rng.uniform(*heights))
+            out.append(_box([*lo.tolist(), 0.0], [*(lo + w).tolist(), h]))
+    return out
 
 
 KINDS: dict[str, Callable[[np.random.Generator], tuple[list[float], list[Document]]]] = {
