@@ -82,6 +82,12 @@ class Settings(BaseSettings):
     max_body_bytes: int = Field(default=1_000_000, gt=0)
     """Largest accepted request body; larger ones get 413."""
 
+    submission_concurrency: int = Field(default=1, ge=1)
+    """Submissions the API validates and stores at once; more wait their turn. Validation is
+    CPU work in one Python process: running many at once does not finish them sooner but
+    makes every concurrent read wait for the interpreter lock (ten at once took reads of a
+    mission from 12 to over 400 ms at the 99th percentile, ``bench/service.py --load``)."""
+
     # Admission limits (workers.limits.AdmissionLimits): a mission over one is refused with 422
     # by the API and exit code 2 by ``ltlnav validate``/``train``, naming the setting to raise.
 
@@ -176,6 +182,11 @@ class Settings(BaseSettings):
 
     worker_concurrency: int | None = Field(default=None, ge=1)
     """Training processes per worker. None: the number of cores."""
+
+    worker_nice: int = Field(default=10, ge=0, le=19)
+    """Niceness a worker adds to itself at start (Unix): planning and training are batch work
+    that uses every core, and yield it to the API, the dashboard and interactive use of the
+    machine. 0 keeps the priority of the shell that started it."""
 
     broker_polling_interval: float = Field(default=0.05, gt=0)
     """Seconds between polls of the SQLAlchemy (embedded) broker; kombu's 1 s default makes

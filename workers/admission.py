@@ -278,3 +278,18 @@ def _network_problems(kwargs: dict[str, Any], where: str, limits: AdmissionLimit
         if message:
             problems.append((f"{where}.n_critics", message))
     return problems
+
+
+def servable_problems(mission: MissionSpec) -> list[tuple[str, str]]:
+    """Why ltlnav cannot train and bundle ``mission`` as ``(field, reason)`` pairs (none: it
+    can). The bundle concatenates one agent per sub-task, so a mode that trains one agent for
+    the whole lasso is refused before anything is stored."""
+    if mission.training.reward.mode == "g-rrt":
+        return [
+            (
+                "training.reward.mode",
+                "g-rrt trains one agent for the whole lasso; ltlnav trains and bundles one "
+                "agent per sub-task: use rrt, rrt-paper, ned or tl",
+            )
+        ]
+    return []

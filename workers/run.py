@@ -29,6 +29,7 @@ from planner.decompose import lasso_stages
 from planner.errors import PlanningError
 from planner.plan import MissionPlan, plan_mission, translate_task, verify_plan
 from planner.serialize import plan_from_dict, plan_to_dict
+from workers.admission import servable_problems
 from workers.atomic import write_json
 from workers.evaluation import MissionEvaluation, rollout_mission, stage_policies
 from workers.handover_repair import (
@@ -76,21 +77,6 @@ class RunResult:
     """The rounds of hand-over repair run (``workers.handover_repair``)."""
 
 
-def servable_problems(mission: MissionSpec) -> list[tuple[str, str]]:
-    """Why ltlnav cannot train and bundle ``mission`` as ``(field, reason)`` pairs (none: it
-    can). The bundle concatenates one agent per sub-task, so a mode that trains one agent for
-    the whole lasso is refused before anything is stored."""
-    if mission.training.reward.mode == "g-rrt":
-        return [
-            (
-                "training.reward.mode",
-                "g-rrt trains one agent for the whole lasso; ltlnav trains and bundles one "
-                "agent per sub-task: use rrt, rrt-paper, ned or tl",
-            )
-        ]
-    return []
-
-
 class MissionRun:
     """A mission, its plan and its folder (see the module docstring)."""
 
@@ -113,8 +99,6 @@ class MissionRun:
             raise MissionError(problems)
         out = Path(folder)
         return cls(spec, stored_or_new_plan(spec, out, limits), out)
-
-    servable = staticmethod(servable_problems)
 
     @property
     def training(self) -> TrainingSpec:

@@ -1,15 +1,19 @@
 """What the routes depend on, as ``Annotated`` parameter types (FastAPI dependencies).
 
-``ServicesDep`` is the app's settings, database, enqueue, examples and health monitor;
+``ServicesDep`` is the app's settings, database, enqueue, examples, health monitor and
+submission gate;
 ``Caller`` the API key of the request (missions are scoped by it); ``SessionDep`` one database
 session per request; ``OwnedMission`` the caller's mission named by the path's
-``mission_id``."""
+``mission_id``.
+
+The dependencies that do no I/O are ``async``: FastAPI runs a plain function in a worker
+thread, one more hop per request."""
 
 from __future__ import annotations
 
 import hmac
 import re
-from collections.abc import Callable, Iterator
+from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Annotated
 
@@ -20,6 +24,7 @@ from sqlalchemy.orm import Session
 from service import repository as repo
 from service.api.examples import ExampleCatalogue
 from service.api.health import HealthMonitor
+from service.api.submission_gate import SubmissionGate
 from service.db import Database
 from service.models import Mission
 from service.settings import Settings
@@ -37,13 +42,15 @@ class Services:
     enqueue: Enqueue
     examples: ExampleCatalogue = field(init=False)
     health: HealthMonitor = field(init=False)
+    submissions: SubmissionGate = field(init=False)
 
     def __post_init__(self) -> None:
         self.examples = ExampleCatalogue(self.settings.examples_dir)
         self.health = HealthMonitor(self.settings, self.database)
+        self.submissions = SubmissionGate(self.settings.submission_concurrency)
 
 
-def services(request: Request) -> Services:
+async def services(request: Request) -> Services:
     """The ``Services`` of the app serving ``request``."""
     found: Services = request.app.state.services
     return found
@@ -69,7 +76,7 @@ def _matching_key(token: str, keys: list[str]) -> str | None:
     return found
 
 
-def caller(
+async def caller(
     deps: ServicesDep,
     credentials: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)],
 ) -> str | None:
@@ -96,6 +103,16 @@ def caller(
 
 Caller = Annotated[str | None, Depends(caller)]
 """The authenticated API key of a request (None: open API)."""
+
+
+async def submission_slot(deps: ServicesDep) -> AsyncIterator[None]:
+    """One of the app's submission slots (``SubmissionGate``), until the handler returns."""
+    async with deps.submissions.slot():
+        yield
+
+
+SubmissionSlot = Annotated[None, Depends(submission_slot, scope="function")]
+"""A submission slot held by the request (see ``SubmissionGate``)."""
 
 
 def database_session(deps: ServicesDep) -> Iterator[Session]:

@@ -19,15 +19,14 @@ from fastapi import Body, Depends
 from pydantic import PlainValidator
 
 from planner.errors import LtlnavError
-from service.api.deps import ServicesDep
+from service.api.deps import ServicesDep, SubmissionSlot
 from service.api.errors import body_problem, invalid
 from service.api.examples import ExampleCatalogue
 from service.api.json_body import decode_json
 from service.api.schemas import MissionCreate, submission_kind
-from workers.admission import admit, mission_problems
+from workers.admission import admit, mission_problems, servable_problems
 from workers.limits import AdmissionLimits
 from workers.mission import MissionError, MissionSpec
-from workers.run import servable_problems
 
 log = logging.getLogger(__name__)
 
@@ -124,7 +123,7 @@ def _refuse_over_limits(spec: MissionSpec, limits: AdmissionLimits) -> None:
         raise invalid([body_problem(path, reason, "over_limit") for path, reason in problems])
 
 
-def valid_submission(body: MissionBody, deps: ServicesDep) -> Submission:
+def valid_submission(_slot: SubmissionSlot, body: MissionBody, deps: ServicesDep) -> Submission:
     """The mission of the body, validated fully (syntax, formula, world, robot) and one the
     service can train and bundle; else 422 with every problem located. A plain function, so
     FastAPI runs it in a worker thread, off the event loop."""

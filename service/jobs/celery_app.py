@@ -137,12 +137,20 @@ def make_celery(settings: Settings | None = None) -> LtlnavCelery:
 app = make_celery()
 
 
+def lower_priority(increment: int) -> None:
+    """Add ``increment`` to this process's niceness (its pool children inherit it): training
+    yields the cores to the API and to interactive work. No-op where ``os.nice`` is missing."""
+    if increment and hasattr(os, "nice"):
+        os.nice(increment)
+
+
 def run_worker(
     settings: Settings | None = None, concurrency: int | None = None, loglevel: str = "INFO"
 ) -> None:
     """Run a worker until it is stopped (``concurrency`` processes, default the cores); its
     main process also reconciles the database with the queue every ``reconcile_seconds``."""
     settings = settings or get_settings()
+    lower_priority(settings.worker_nice)
     worker_app = make_celery(settings)
     prepare_dirs(settings)
     argv = [

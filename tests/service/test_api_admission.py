@@ -232,7 +232,9 @@ def test_two_concurrent_requests_with_one_key_make_one_mission(
 
     monkeypatch.setattr(repo, "serialize_submissions", after_both)
     headers = {**(ALPHA if keys else {}), "Idempotency-Key": "retry-me"}
-    with _http(database, tmp_path, keys=keys) as http, ThreadPoolExecutor(2) as pool:
+    # One API process admits one submission at a time; two slots stand for two API processes.
+    http_client = _http(database, tmp_path, keys=keys, submission_concurrency=2)
+    with http_client as http, ThreadPoolExecutor(2) as pool:
         answers = list(
             pool.map(lambda _: http.post("/missions", json=tiny(), headers=headers), range(2))
         )

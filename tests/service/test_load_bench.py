@@ -35,3 +35,8 @@ def test_load_mode_accounts_for_every_mission(tmp_path: Path) -> None:
     broker = [sample.broker for sample in result.samples if sample.broker is not None]
     assert max(broker) > 0 and broker[-1] == 0, broker
     assert result.progress_events_left == 0
+    assert len(result.get_server_times) == len(result.get_times)
+    assert all(
+        0 < server <= client
+        for server, client in zip(result.get_server_times, result.get_times, strict=True)
+    ), "every read carries the API's own time, within the client's"

@@ -1,0 +1,110 @@
+"""What keeps reads of the API fast while it validates submissions and the workers train: the
+API process never loads the learners, leaves its start-up objects out of the garbage
+collector's reach, validates one submission at a time, times itself in ``Server-Timing``; the
+worker yields the CPU."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+from service.api.app import create_app
+from service.api.submission_gate import SubmissionGate
+from service.db import Database, upgrade
+from tests.service.api_helpers import RecordingEnqueue, settings_for, tiny
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _run_python(code: str) -> str:
+    done = subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    return done.stdout.strip()
+
+
+def test_the_api_process_does_not_load_torch_or_the_learners() -> None:
+    # torch and stable-baselines3 add seconds of start-up and some 170,000 objects that every
+    # full garbage collection of the API process walks.
+    code = (
+        "import sys; import service.api.app, service.jobs.tasks; "
+        "print(sorted(m for m in ('torch', 'stable_baselines3', 'pybullet') if m in sys.modules))"
+    )
+    assert _run_python(code) == "[]"
+
+
+def test_start_up_freezes_its_objects_and_hands_the_lock_on_sooner(tmp_path: Path) -> None:
+    code = (
+        "import gc, sys, tempfile; from fastapi.testclient import TestClient; "
+        "from service.api.app import create_app, GIL_SWITCH_SECONDS; "
+        "from service.settings import Settings; "
+        "s = Settings(data_dir=tempfile.mkdtemp()); "
+        "before = gc.get_freeze_count(); "
+        "client = TestClient(create_app(s, enqueue=lambda m: None)); client.__enter__(); "
+        "print(before == 0, gc.get_freeze_count() > 10_000, "
+        "sys.getswitchinterval() == GIL_SWITCH_SECONDS); client.__exit__(None, None, None)"
+    )
+    assert _run_python(code) == "True True True"
+
+
+def _most_inside_at_once(gate: SubmissionGate, submissions: int) -> int:
+    """The most of ``submissions`` concurrent ones that held a slot of ``gate`` at once."""
+    inside = 0
+    most = 0
+
+    async def submit() -> None:
+        nonlocal inside, most
+        async with gate.slot():
+            inside += 1
+            most = max(most, inside)
+            await asyncio.sleep(0.01)
+            inside -= 1
+
+    async def burst() -> None:
+        await asyncio.gather(*(submit() for _ in range(submissions)))
+
+    asyncio.run(burst())
+    return most
+
+
+def test_submissions_are_validated_one_at_a_time_by_default(tmp_path: Path) -> None:
+    slots = settings_for(tmp_path, "sqlite://").submission_concurrency
+    assert slots == 1
+    gate = SubmissionGate(slots)
+    assert _most_inside_at_once(gate, 10) == 1
+    assert _most_inside_at_once(gate, 10) == 1  # a second event loop gets its own semaphore
+
+
+def test_the_gate_lets_as_many_in_as_it_has_slots() -> None:
+    assert _most_inside_at_once(SubmissionGate(slots=3), 10) == 3
+
+
+def test_every_response_says_how_long_the_api_took(sqlite_url: str, tmp_path: Path) -> None:
+    upgrade(sqlite_url)
+    database = Database(sqlite_url)
+    settings = settings_for(tmp_path, sqlite_url)
+    with TestClient(create_app(settings, RecordingEnqueue(database))) as http:
+        created = http.post("/missions", json=tiny())
+        read = http.get(f"/missions/{created.json()['id']}")
+        missing = http.get("/missions/nope")
+    for response in (created, read, missing):
+        name, _, duration = response.headers["server-timing"].partition(";dur=")
+        assert name == "app" and float(duration) >= 0, response.headers["server-timing"]
+    assert missing.status_code == 404
+
+
+@pytest.mark.skipif(not hasattr(os, "nice"), reason="os.nice is Unix only")
+def test_a_worker_lowers_its_own_priority() -> None:
+    code = (
+        "import os; from service.jobs.celery_app import lower_priority; "
+        "before = os.nice(0); lower_priority(3); print(os.nice(0) - before)"
+    )
+    expected = str(min(3, 19 - os.nice(0)))
+    assert _run_python(code) == expected
