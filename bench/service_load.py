@@ -503,7 +503,8 @@ def server_seconds(response: httpx.Response) -> float:
 
 def _get_phases(result: LoadResult) -> tuple[list[float], list[float]]:
     """GET latencies of the requests sent while missions were being submitted, and after."""
-    during, after = [], []
+    during: list[float] = []
+    after: list[float] = []
     for sent, elapsed in zip(result.get_sent, result.get_times, strict=True):
         (during if sent < result.submit_seconds else after).append(elapsed)
     return during, after
