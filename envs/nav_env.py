@@ -7,8 +7,9 @@ progress index set to match) and ends when
 * the robot crashes (``robot.collided()``: obstacle or out of bounds): terminated, ``R-``,
   ``is_success`` False; this has first priority;
 * the judge of the reward mode says the goal is reached (the goal region contains the robot's
-  point; ``tl``/``g-rrt``: the automaton made the sub-task's transition(s)): terminated,
-  ``R++``, ``is_success`` True; an automaton violation ends like a crash;
+  point, or with ``goal_judge`` ``"guide_end"`` the guide's last r-ball does; ``tl``/``g-rrt``:
+  the automaton made the sub-task's transition(s)): terminated, ``R++``, ``is_success`` True;
+  an automaton violation ends like a crash;
 * optionally, no new r-ball was reached for ``stall_steps`` steps (see ``envs.options.EnvOptions``);
 * the step limit is hit: truncated, ``is_success`` False.
 
@@ -284,7 +285,7 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         if crashed:
             outcome = RUNNING
         elif self._automaton is None:
-            goal = leg.goal
+            goal = leg.goal if self.options.goal_judge == "region" else None
             reached = goal.contains(x) if goal is not None else d == 0.0
             outcome = SUCCESS if reached else RUNNING
         else:

@@ -21,6 +21,9 @@ from envs.rewards import RewardConfig, reward_config
 FeedforwardLaw = Literal["heading", "pursuit"]
 """How ``EnvOptions.guide_feedforward`` turns a (forward, turn) robot."""
 
+GoalJudge = Literal["region", "guide_end"]
+"""When the region judge says a sub-task's goal is reached (``EnvOptions.goal_judge``)."""
+
 
 @dataclass(frozen=True)
 class EnvOptions:
@@ -92,6 +95,11 @@ class EnvOptions:
     r_ball: float | None = None
     """Radius of the guide's r-balls. None: the plan's ``r_ball``, or the planner default
     (a fortieth of the world's diagonal, ``eta / 2``) without a plan."""
+    goal_judge: GoalJudge = "region"
+    """``"region"``: the goal is reached when the sub-task's goal region contains the robot's
+    point (the guide's last r-ball for a sub-task without one); ``"guide_end"``: when the point
+    is in the guide's last r-ball, ``D = 0``, as Cai et al. judge it. The automaton judge
+    (``tl``, ``g-rrt``) ignores it."""
     rewards: RewardConfig = field(default_factory=RewardConfig)
     """Reward constants over the mode's defaults (see ``envs.rewards``)."""
 
@@ -113,6 +121,11 @@ class EnvOptions:
         need(self.max_steps is None or self.max_steps >= 1, "max_steps", "must be >= 1")
         need(number("time_factor") and self.time_factor > 0, "time_factor", "must be > 0")
         need(self.observation in ("guided", "paper"), "observation", "must be guided or paper")
+        need(
+            self.goal_judge in ("region", "guide_end"),
+            "goal_judge",
+            "must be region or guide_end",
+        )
         need(integer("lookahead") and self.lookahead >= 0, "lookahead", "must be an integer >= 0")
         need(integer("rays") and self.rays >= 0, "rays", "must be an integer >= 0")
         for name in ("lookahead_range", "ray_range", "r_ball"):

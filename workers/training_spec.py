@@ -108,15 +108,25 @@ lidar-like rays in the observation (training and evaluation alike), so that keep
 is a function of what the robot senses, not of a memorised map."""
 
 STALL_ENV_DEFAULTS: dict[str, Any] = {"stall_steps": 30}
-"""Training defaults of the guide rewards (``GUIDED_MODES``): an episode that reaches no new
-r-ball for 30 steps ends as a failure with the mode's crash reward (``stall_penalty``), so
-leaving the guide costs what a crash costs and the off-guide wandering never fills the replay
-buffer. Evaluations never stop a stalled episode."""
+"""Training defaults of the ``shaped`` protocol: an episode that reaches no new r-ball for 30
+steps ends as a failure with the mode's crash reward (``stall_penalty``), so leaving the guide
+costs what a crash costs and the off-guide wandering never fills the replay buffer.
+Evaluations never stop a stalled episode."""
 
-GUIDED_MODES = frozenset({"rrt", "g-rrt"})
-"""Reward modes that take ``STALL_ENV_DEFAULTS`` and ``GUIDE_ENV_DEFAULTS`` (both read
-the guide): ours. ``rrt-paper`` is the paper's method as published; ``ned`` and ``tl`` must not
-learn from the guide."""
+Protocol = Literal["shaped", "paper"]
+"""The env every reward mode trains and is evaluated in (``TrainingSpec.protocol``)."""
+
+PAPER_ENV: dict[str, Any] = {
+    "observation": "paper",
+    "rays": 0,
+    "curriculum": 0.0,
+    "goal_judge": "guide_end",
+}
+"""The ``paper`` protocol, Cai et al.'s env as published: the observation is the robot's state
+and the product state ``(s_t, i_t)`` (no ball offsets, no rays), episodes start at the real
+start (no curriculum), nothing ends an episode early but a crash or the goal, no action
+shaping (no stall, ``min_forward``, feed-forward or redrawn guide), and a sub-task is met at
+``D = 0`` (the guide's last r-ball)."""
 
 HEADING_ENV_DEFAULTS: dict[str, Any] = {"min_forward": 0.2}
 """Defaults for robots driven by (forward, turn) actions, in training and evaluation alike (it
@@ -134,7 +144,7 @@ GUIDE_ENV_DEFAULTS: dict[str, dict[str, Any]] = {
         "progress_window": 2,
     },
 }
-"""Defaults per robot for ``GUIDED_MODES``, in training and evaluation alike (they change what
+"""Defaults per robot of the ``shaped`` protocol, in training and evaluation alike (they change what
 an action means and which guide the reward follows). Measured in ``bench/LEARNING.md``:
 
 * point: the acceleration that brings it to top speed toward the guide's point one braking
@@ -263,6 +273,13 @@ class TrainingSpec(BaseModel):
         1, ge=1, description="torch threads per job (more is slower on a shared machine)."
     )
     reward: RewardSpec = Field(default_factory=lambda: RewardSpec(), description="Reward.")
+    protocol: Protocol = Field(
+        "shaped",
+        description="'shaped' (default): every reward mode gets the same env, with the "
+        "measured defaults (rays, curriculum, stall, min_forward, the robot's feed-forward); "
+        "'paper': Cai et al.'s env as published (state and (s_t, i_t) only, no curriculum, no "
+        "stall, no action shaping, success at D = 0). env overrides either.",
+    )
     env: dict[str, Any] = Field(
         default_factory=dict,
         description="envs.options.EnvOptions fields (max_steps, observation, lookahead, rays, "
@@ -330,14 +347,17 @@ class TrainingSpec(BaseModel):
         return EnvOptions(**fields)
 
     def _resolved_env(self, model: str) -> dict[str, Any]:
-        """``env`` over the measured training defaults for a ``model`` robot."""
+        """``env`` over the protocol's defaults for a ``model`` robot: ``paper`` takes
+        ``PAPER_ENV``; ``shaped`` the measured training defaults, the same for every reward
+        mode (only the reward differs)."""
+        if self.protocol == "paper":
+            return {**PAPER_ENV, **self.env}
         defaults = dict(TRAINING_ENV_DEFAULTS)
         if model in HEADING_FEATURES:
             defaults.update(HEADING_ENV_DEFAULTS)
-        if self.reward.mode in GUIDED_MODES:
-            defaults.update(GUIDE_ENV_DEFAULTS.get(model, {}))
-            crash = reward_mode(self.reward.mode, self.reward.config()).crash
-            defaults.update(STALL_ENV_DEFAULTS, stall_penalty=crash)
+        defaults.update(GUIDE_ENV_DEFAULTS.get(model, {}))
+        crash = reward_mode(self.reward.mode, self.reward.config()).crash
+        defaults.update(STALL_ENV_DEFAULTS, stall_penalty=crash)
         return {**defaults, **self.env}
 
     def policy_kwargs(self) -> dict[str, Any]:

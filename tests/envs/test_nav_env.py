@@ -213,6 +213,31 @@ def test_crash_ends_with_r_minus_before_goal_and_progress(envs: list[NavEnv]) ->
         assert any(s[0] > 0 for s in steps[:-1])
 
 
+@pytest.mark.parametrize(("judge", "met_beyond"), [("region", 5.0), ("guide_end", 7.5)])
+def test_the_goal_judge_decides_where_a_sub_task_is_met(
+    envs: list[NavEnv], judge: str, met_beyond: float
+) -> None:
+    """A wide goal region whose guide ends deep inside it: the region judge meets the sub-task
+    on entering the region, the paper's ``D = 0`` only in the guide's last r-ball."""
+    world = World(
+        np.array([[0.0, 10.0], [0.0, 4.0]]),
+        [],
+        {"g": Box(np.array([5.0, 1.0]), np.array([9.5, 3.0]))},
+    )
+    path = np.array([[1.0, 2.0], [8.0, 2.0]])
+    sub = SubTask(0, "prefix", "g", path[0], path, 0, 0)
+    spec = RobotSpec(model="unicycle", start=[1.0, 2.0, 0.0], radius=0.1)
+    env = make_env(Mission(Prebuilt(world), spec), sub, "rrt", world=world, goal_judge=judge)
+    envs.append(env)
+    env.reset(seed=0)
+    steps = drive_straight(env, np.array([1.0, 0.0]), 400)
+    _, terminated, _, info = steps[-1]
+    assert terminated and info["is_success"] is True
+    x = float(env.robot.position()[0])
+    assert met_beyond <= x < met_beyond + 0.5, x
+    assert (info["d"] == 0.0) == (judge == "guide_end")
+
+
 def test_step_limit_truncates_without_success(envs: list[NavEnv]) -> None:
     env = build_env("unicycle", 2, max_steps=7)
     envs.append(env)

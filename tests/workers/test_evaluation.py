@@ -4,6 +4,7 @@ scripted guide follower (succeeds), a parked robot (times out) and a crasher (co
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
@@ -187,16 +188,17 @@ def test_evaluation_options_start_at_the_real_start_with_noise() -> None:
     assert spec.training.env_options(spec.robot.model).curriculum == 0.7
 
 
-def test_guide_rewards_end_a_stall_with_the_crash_reward_and_every_mode_sees_rays() -> None:
+def test_every_mode_ends_a_stall_with_its_crash_reward_and_sees_rays() -> None:
     ours = tiny_mission().training
     trained, evaluated = ours.env_options("point"), ours.eval_env_options("point")
     assert (trained.stall_steps, trained.stall_penalty, trained.rays) == (30, -10.0, 16)
     assert (evaluated.stall_steps, evaluated.rays) == (0, 16)  # never cut short; same inputs
     harsher = tiny_mission(reward={"constants": {"crash": -5.0}}).training
     assert harsher.env_options("point").stall_penalty == -5.0
-    for mode in ("rrt-paper", "ned", "tl"):
+    crashes = {"rrt-paper": -100.0, "ned": -10.0, "tl": -10.0}
+    for mode, crash in crashes.items():  # the shaped protocol: only the reward differs
         other = tiny_mission(reward={"mode": mode}).training.env_options("point")
-        assert (other.stall_steps, other.stall_penalty, other.rays) == (0, None, 16)
+        assert (other.stall_steps, other.stall_penalty, other.rays) == (30, crash, 16)
     chosen = tiny_mission(env={"stall_steps": 0, "rays": 0}).training.env_options("point")
     assert (chosen.stall_steps, chosen.rays) == (0, 0)
 
@@ -222,7 +224,24 @@ def test_measured_training_defaults_apply_by_robot_and_yield_to_the_mission() ->
     assert training.eval_env_options("quadrotor").guide_feedforward == 1.0  # same meaning
     off = tiny_mission(env={"guide_feedforward": None}).training.env_options("quadrotor")
     assert off.guide_feedforward is None
-    for mode in ("rrt-paper", "ned", "tl"):  # the baselines do not follow the guide
+    for mode in ("rrt-paper", "ned", "tl"):  # the baselines get the same env as ours
         baseline = tiny_mission(reward={"mode": mode}).training.model_copy(update={"env": {}})
-        assert baseline.env_options("quadrotor").guide_feedforward is None
-        assert baseline.env_options("racecar").drivable_guide is None
+        for model in ("point", "unicycle", "racecar", "quadrotor"):
+            theirs, ours = baseline.env_options(model), training.env_options(model)
+            reward_only = {"stall_penalty": theirs.stall_penalty, "rewards": theirs.rewards}
+            assert theirs == replace(ours, **reward_only)
+
+
+def test_the_paper_protocol_is_the_published_env_for_every_mode() -> None:
+    for mode in ("rrt", "rrt-paper", "ned", "tl"):
+        training = tiny_mission(reward={"mode": mode}, protocol="paper").training
+        training = training.model_copy(update={"env": {}})
+        for model in ("point", "unicycle", "racecar", "quadrotor"):
+            trained, evaluated = training.env_options(model), training.eval_env_options(model)
+            for options in (trained, evaluated):
+                assert (options.observation, options.rays, options.curriculum) == ("paper", 0, 0)
+                assert (options.stall_steps, options.min_forward) == (0, None)
+                assert (options.guide_feedforward, options.drivable_guide) == (None, None)
+                assert options.goal_judge == "guide_end"
+    chosen = tiny_mission(protocol="paper", env={"rays": 8}).training.env_options("point")
+    assert (chosen.rays, chosen.observation) == (8, "paper")
