@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
+from itertools import pairwise
 from typing import Any
 
 import gymnasium as gym
@@ -49,13 +50,36 @@ def lane_seed(seed: int, lane: int) -> int:
     return seed + LANE_STRIDE * lane
 
 
-def seed_lanes(envs: Sequence[gym.Env[Any, Any]], seed: int) -> list[Any]:
-    """Reset every lane with its ``lane_seed``: its first observation."""
-    return [env.reset(seed=lane_seed(seed, j))[0] for j, env in enumerate(envs)]
+def seed_lanes(envs: Sequence[gym.Env[Any, Any]], seed: int, first: int = 0) -> list[Any]:
+    """Reset every lane with its ``lane_seed`` (the envs are lanes ``first``, ``first + 1``,
+    ...): its first observation."""
+    return [env.reset(seed=lane_seed(seed, first + j))[0] for j, env in enumerate(envs)]
 
 
 Lanes = gym.Env[Any, Any] | Sequence[gym.Env[Any, Any]]
 """One env, or copies of one env stepped in lockstep (lanes)."""
+
+
+@dataclass(frozen=True)
+class LaneShare:
+    """Lanes ``first`` to ``first + count - 1`` of an evaluation on ``total`` lanes: the part
+    one process runs. Lane ``g`` is seeded ``lane_seed(seed, g)`` and runs ``(episodes + g) //
+    total`` episodes whichever process runs it, so the parts together are the whole."""
+
+    first: int
+    count: int
+    total: int
+
+    def episodes(self, episodes: int) -> list[int]:
+        """Episodes each lane of the share runs, of an evaluation of ``episodes``."""
+        return [(episodes + self.first + j) // self.total for j in range(self.count)]
+
+
+def lane_shares(total: int, parts: int) -> list[LaneShare]:
+    """``total`` lanes cut into at most ``parts`` shares of nearly equal size."""
+    parts = max(1, min(parts, total))
+    bounds = [total * k // parts for k in range(parts + 1)]
+    return [LaneShare(a, b - a, total) for a, b in pairwise(bounds)]
 
 
 def run_lanes(
@@ -65,17 +89,23 @@ def run_lanes(
     seed: int,
     ended: Callable[[gym.Env[Any, Any], dict[str, Any], int], None],
     reset: Callable[[np.ndarray], None] | None = None,
+    share: LaneShare | None = None,
 ) -> None:
     """Run ``episodes`` episodes of ``act`` on one env, or on lanes in lockstep (``act`` then
     gets the batch of the running lanes' observations, one row per lane, and returns one action
     per row). Lane ``j`` is seeded once with ``lane_seed(seed, j)`` and runs
-    ``(episodes + j) // lanes`` episodes one after another. ``ended(env, info, steps)`` hears
+    ``(episodes + j) // lanes`` episodes one after another; with ``share`` the envs are that
+    share's lanes of a larger evaluation (``LaneShare``). ``ended(env, info, steps)`` hears
     every episode's end before its env is reset; ``reset(obs)`` every start."""
     batched = not isinstance(envs, gym.Env)
     lanes: list[gym.Env[Any, Any]] = [envs] if isinstance(envs, gym.Env) else list(envs)
-    lanes = lanes[:episodes]
-    left = [(episodes + j) // len(lanes) for j in range(len(lanes))]
-    obs = seed_lanes(lanes, seed)
+    if share is None:
+        lanes = lanes[:episodes]
+        share = LaneShare(0, len(lanes), len(lanes))
+    if len(lanes) != share.count:
+        raise ValueError(f"{len(lanes)} envs for a share of {share.count} lanes")
+    left = share.episodes(episodes)
+    obs = seed_lanes(lanes, seed, share.first)
     for first in obs:
         if reset is not None:
             reset(first)
@@ -179,9 +209,11 @@ def rollout_mission(
     seed: int = 0,
     keep_trails: int = 3,
     reset: Callable[[np.ndarray], None] | None = None,
+    share: LaneShare | None = None,
 ) -> MissionEvaluation:
     """Roll out ``act`` on one ``MissionEnv`` or on its lanes (``run_lanes``) for ``episodes``
-    episodes; ``reset(obs)`` is called at the start of each episode."""
+    episodes; ``reset(obs)`` is called at the start of each episode. With ``share`` only that
+    share's episodes run (``merge_evaluations`` joins the shares)."""
     counts = {"collision": 0, "timeout": 0, "rejected": 0}
     failures: dict[str, dict[str, int]] = {}
     lengths: list[int] = []
@@ -206,18 +238,53 @@ def rollout_mission(
         failures.setdefault(where, {}).setdefault(kind, 0)
         failures[where][kind] += 1
 
-    run_lanes(act, envs, episodes, seed, ended, reset)
+    run_lanes(act, envs, episodes, seed, ended, reset, share)
     one = envs if isinstance(envs, MissionEnv) else envs[0]
+    ran = episodes if share is None else sum(share.episodes(episodes))
     return MissionEvaluation(
-        episodes=episodes,
+        episodes=ran,
         cycles=one.cycles,
-        success_rate=successes / episodes,
-        collision_rate=counts["collision"] / episodes,
-        timeout_rate=counts["timeout"] / episodes,
-        rejected_rate=counts["rejected"] / episodes,
+        success_rate=successes / ran,
+        collision_rate=counts["collision"] / ran,
+        timeout_rate=counts["timeout"] / ran,
+        rejected_rate=counts["rejected"] / ran,
         mean_steps=float(np.mean(lengths)) if lengths else None,
         failures=failures,
         trails=trails,
+        handovers=handovers,
+    )
+
+
+def merge_evaluations(
+    parts: Sequence[MissionEvaluation], keep_trails: int = 3
+) -> MissionEvaluation:
+    """One evaluation of the rollouts of ``parts`` (the shares of one evaluation, in order)."""
+    episodes = sum(p.episodes for p in parts)
+    successes = [round(p.success_rate * p.episodes) for p in parts]
+    steps = sum(n * p.mean_steps for n, p in zip(successes, parts, strict=True) if p.mean_steps)
+    failures: dict[str, dict[str, int]] = {}
+    handovers: dict[int, list[Pose]] = {}
+    for part in parts:
+        for where, kinds in part.failures.items():
+            for kind, count in kinds.items():
+                failures.setdefault(where, {}).setdefault(kind, 0)
+                failures[where][kind] += count
+        for k, poses in part.handovers.items():
+            handovers.setdefault(k, []).extend(poses)
+
+    def rate(name: str) -> float:
+        return sum(getattr(p, name) * p.episodes for p in parts) / episodes
+
+    return MissionEvaluation(
+        episodes=episodes,
+        cycles=parts[0].cycles,
+        success_rate=sum(successes) / episodes,
+        collision_rate=rate("collision_rate"),
+        timeout_rate=rate("timeout_rate"),
+        rejected_rate=rate("rejected_rate"),
+        mean_steps=steps / sum(successes) if sum(successes) else None,
+        failures=failures,
+        trails=[trail for p in parts for trail in p.trails][:keep_trails],
         handovers=handovers,
     )
 

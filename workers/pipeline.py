@@ -21,7 +21,7 @@ from workers.hooks import TrainingHooks
 from workers.jobs import SubtaskJob
 from workers.limits import AdmissionLimits
 from workers.mission import MissionSpec
-from workers.run import MissionRun, RunResult
+from workers.run import MissionRun, RunResult, Spread
 from workers.training import TrainResult
 
 PipelineProgress = Callable[[int, int, float | None, int, bool], None]
@@ -61,7 +61,8 @@ def run_pipeline(
     limits: AdmissionLimits | None = None,
 ) -> RunResult:
     """Open the run of ``mission`` in ``out_dir``, train its sub-tasks (``jobs`` processes,
-    default the CPU count), roll out the concatenated policy, repair hand-overs while the
+    default the CPU count), roll out the concatenated policy (its lanes shared out over the
+    same processes), repair hand-overs while the
     mission is below its target and write ``out_dir/bundle.zip``. The training section
     (budget, seed, ...) is the mission's own: override it on the spec before calling.
     ``limits``: see ``MissionRun.open``."""
@@ -94,6 +95,7 @@ def run_pipeline(
                         steps_before[job.subtask] = steps_before.get(job.subtask, 0) + result.steps
                     return out
 
+                run.spread = Spread(pool.map, workers)
                 results = train_all(first)
                 evaluation = run.evaluate(results)
                 results, evaluation, repairs = run.repair(results, evaluation, train_all)

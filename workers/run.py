@@ -19,10 +19,13 @@ from __future__ import annotations
 import json
 import time
 import warnings
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
+
+import torch
 
 from envs.mission_env import MissionEnv
 from planner.decompose import lasso_stages
@@ -31,7 +34,14 @@ from planner.plan import MissionPlan, plan_mission, translate_task, verify_plan
 from planner.serialize import plan_from_dict, plan_to_dict
 from workers.admission import servable_problems
 from workers.atomic import write_json
-from workers.evaluation import MissionEvaluation, rollout_mission, stage_policies
+from workers.evaluation import (
+    LaneShare,
+    MissionEvaluation,
+    lane_shares,
+    merge_evaluations,
+    rollout_mission,
+    stage_policies,
+)
 from workers.handover_repair import (
     RepairRound,
     candidate_results,
@@ -65,6 +75,35 @@ RunJobs = Callable[[Sequence[SubtaskJob]], list[TrainResult]]
 """Train these jobs (in parallel where the driver can) and return their results in order."""
 
 
+@dataclass(frozen=True)
+class Spread:
+    """Processes the whole-mission rollouts may run on: ``map(function, items)`` runs the
+    function on each item in them (``Executor.map``), ``processes`` is how many there are."""
+
+    map: Callable[[Callable[[LaneShare], MissionEvaluation], Sequence[LaneShare]], Iterable[Any]]
+    processes: int
+
+
+def rollout_share(
+    run: MissionRun, models: Sequence[str], seed: int, share: LaneShare
+) -> MissionEvaluation:
+    """``share`` of the whole-mission rollouts of the policies in ``models`` seeded ``seed``
+    (in a pool process: the run and the model paths travel, the models load there)."""
+    training, mission = run.training, run.mission
+    torch.set_num_threads(training.torch_threads)
+    cls = ALGORITHMS[training.algorithm]
+    loaded = [cls.load(path, device="cpu") for path in models]
+    policies = [(lambda obs, m=m: m.predict(obs, deterministic=True)[0]) for m in loaded]
+    options = training.eval_env_options(mission.robot.model)
+    envs = [MissionEnv(mission, run.plan, options, training.cycles) for _ in range(share.count)]
+    try:
+        act = stage_policies(envs[0].sequence, policies)
+        return rollout_mission(act, envs, training.mission_episodes, seed=seed, share=share)
+    finally:
+        for env in envs:
+            env.close()
+
+
 @dataclass
 class RunResult:
     """What a finished run produced."""
@@ -82,6 +121,12 @@ class MissionRun:
 
     def __init__(self, mission: MissionSpec, plan: MissionPlan, folder: Path) -> None:
         self.mission, self.plan, self.folder = mission, plan, folder
+        self.spread: Spread | None = None
+        """Where ``evaluate`` runs its rollouts (None: here); set by the driver that owns
+        the processes, and never sent to them."""
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {**self.__dict__, "spread": None}
 
     @classmethod
     def open(
@@ -131,20 +176,14 @@ class MissionRun:
         """Whole-mission rollouts of the trained models of ``results`` (one per sub-task),
         seeded ``seed`` (default: the deciding rollouts', ``training.seed +
         SELECTION_SEED``)."""
-        training, mission = self.training, self.mission
-        cls = ALGORITHMS[training.algorithm]
-        models = [cls.load(r.model_path, device="cpu") for r in results]
-        policies = [(lambda obs, m=m: m.predict(obs, deterministic=True)[0]) for m in models]
-        options = training.eval_env_options(mission.robot.model)
+        training = self.training
+        at = training.seed + SELECTION_SEED if seed is None else seed
         lanes = min(training.eval_lanes, training.mission_episodes)
-        envs = [MissionEnv(mission, self.plan, options, training.cycles) for _ in range(lanes)]
-        try:
-            act = stage_policies(envs[0].sequence, policies)
-            at = training.seed + SELECTION_SEED if seed is None else seed
-            return rollout_mission(act, envs, training.mission_episodes, seed=at)
-        finally:
-            for env in envs:
-                env.close()
+        rollout = partial(rollout_share, self, [r.model_path for r in results], at)
+        if self.spread is None:
+            return rollout(LaneShare(0, lanes, lanes))
+        shares = lane_shares(lanes, self.spread.processes)
+        return merge_evaluations(list(self.spread.map(rollout, shares)))
 
     def needs_repair(self, evaluation: MissionEvaluation, rounds_done: int) -> bool:
         """Whether another round of hand-over repair is due: the mission is below

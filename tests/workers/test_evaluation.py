@@ -3,8 +3,10 @@ scripted guide follower (succeeds), a parked robot (times out) and a crasher (co
 
 from __future__ import annotations
 
+import pickle
 from collections.abc import Callable
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
@@ -13,13 +15,18 @@ from envs.nav_env import NavEnv
 from planner.decompose import lasso_stages
 from planner.plan import MissionPlan
 from workers.evaluation import (
+    LaneShare,
+    MissionEvaluation,
     evaluate_subtask,
     lane_seed,
+    lane_shares,
+    merge_evaluations,
     rollout_mission,
     seed_lanes,
     stage_policies,
 )
 from workers.mission import MissionSpec
+from workers.run import MissionRun, Spread
 
 from .missions import tiny_mission
 
@@ -245,3 +252,53 @@ def test_the_paper_protocol_is_the_published_env_for_every_mode() -> None:
                 assert options.goal_judge == "guide_end"
     chosen = tiny_mission(protocol="paper", env={"rays": 8}).training.env_options("point")
     assert (chosen.rays, chosen.observation) == (8, "paper")
+
+
+def test_mission_rollouts_cut_into_lane_shares_are_the_whole_rollout(
+    mission: MissionSpec, plan: MissionPlan
+) -> None:
+    """Shares of an evaluation's lanes run apart (in other processes) and merged give what the
+    lanes give together: the same episodes, outcomes, starts and hand-overs."""
+    options = mission.training.eval_env_options(mission.robot.model)
+
+    def drift(obs: np.ndarray) -> np.ndarray:
+        return np.tanh(3.0 * obs[:, :2]).astype(np.float32)
+
+    def rollouts(share: LaneShare) -> MissionEvaluation:
+        lanes = [MissionEnv(mission, plan, options, cycles=1) for _ in range(share.count)]
+        act = stage_policies(lanes[0].sequence, [drift] * 2)
+        try:
+            return rollout_mission(act, lanes, episodes=7, seed=3, keep_trails=7, share=share)
+        finally:
+            for env in lanes:
+                env.close()
+
+    whole = rollouts(LaneShare(0, 3, 3))
+    shares = lane_shares(3, 2)
+    assert [(s.first, s.count, s.total) for s in shares] == [(0, 1, 3), (1, 2, 3)]
+    assert [s.episodes(7) for s in shares] == [[2], [2, 3]]
+    merged = merge_evaluations([rollouts(s) for s in shares], keep_trails=7)
+    assert merged.to_json() == whole.to_json() and merged.episodes == 7
+
+    def starts(evaluation: MissionEvaluation) -> list[tuple[float, ...]]:
+        return sorted(tuple(trail[0]) for trail in evaluation.trails)
+
+    def handed_over(evaluation: MissionEvaluation) -> dict[int, list[tuple[float, ...]]]:
+        return {
+            k: sorted(tuple(np.round(pose.position, 9)) for pose in poses)
+            for k, poses in evaluation.handovers.items()
+        }
+
+    assert starts(merged) == starts(whole) and len(starts(whole)) == 7
+    assert handed_over(merged) == handed_over(whole)
+    assert lane_shares(3, 8) == [LaneShare(0, 1, 3), LaneShare(1, 1, 3), LaneShare(2, 1, 3)]
+
+
+def test_a_run_sent_to_another_process_leaves_its_spread_behind(
+    mission: MissionSpec, plan: MissionPlan, tmp_path: Path
+) -> None:
+    run = MissionRun(mission, plan, tmp_path)
+    run.spread = Spread(map, 2)
+    copy = pickle.loads(pickle.dumps(run))
+    assert copy.spread is None and run.spread is not None
+    assert copy.folder == run.folder and copy.mission == run.mission
