@@ -15,7 +15,9 @@ Run ``.venv/bin/python bench/train_speed.py`` (the car mission, three variants, 
 about an hour on two cores) or ``--missions``, ``--variants NAME=JSON ...``, ``--seeds``;
 ``--report`` re-prints what is on disk. Finished rows are reused. ``--evaluation-cost
 OUT/<mission>/<variant>/seed<N>`` times a finished row's policies' 200-episode evaluations
-one episode after another against 10 lanes (CPU seconds, alternated twice).
+one episode after another against 10 lanes (CPU seconds, alternated twice); ``--rollout-cost
+MISSION FOLDER`` times a finished ``ltlnav train``'s whole-mission rollouts in one process
+against the lanes shared out over ``--jobs`` processes.
 """
 
 from __future__ import annotations
@@ -191,6 +193,43 @@ def evaluation_cost(folder: Path, lanes: int = 10, episodes: int = 200) -> str:
     return "\n".join(lines)
 
 
+def rollout_cost(mission_file: Path, folder: Path, processes: int) -> str:
+    """Wall seconds of a finished run's whole-mission evaluation (``ltlnav train MISSION --out
+    FOLDER``: its ``training.mission_episodes`` rollouts on the deciding seed) in this process
+    against its lanes shared out over a pool of ``processes`` (started before the clock, as
+    ``ltlnav train``'s is), alternated twice."""
+    sys.path.insert(0, str(ROOT))
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    from workers.mission import load_mission
+    from workers.run import MissionRun, Spread
+    from workers.training import TrainResult
+
+    run = MissionRun.open(load_mission(mission_file), folder)
+    results = [
+        TrainResult.from_json(json.loads((run.job_folder(job) / "result.json").read_text()))
+        for job in run.jobs()
+    ]
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(["workers.training"])
+    seconds: dict[str, list[float]] = {"one process": [], f"{processes} processes": []}
+    rates: dict[str, float] = {}
+    with ProcessPoolExecutor(max_workers=processes, mp_context=context) as pool:
+        list(pool.map(abs, range(processes)))  # the processes are up
+        for name in [*seconds, *seconds]:
+            run.spread = None if name == "one process" else Spread(pool.map, processes)
+            started = time.perf_counter()
+            evaluation = run.evaluate(results)
+            seconds[name].append(time.perf_counter() - started)
+            rates[name] = evaluation.success_rate
+    lines = ["| rollouts of the whole mission | wall s (best of 2) | success |", "|---|---|---|"]
+    episodes = run.training.mission_episodes
+    for name, times in seconds.items():
+        lines.append(f"| {episodes} in {name} | {min(times):.1f} | {_pct(rates[name])} |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--missions", nargs="*", default=["car-phi2-fin"], help="example names")
@@ -204,7 +243,19 @@ def main(argv: list[str] | None = None) -> None:
         type=Path,
         help="a finished row's folder: time its policies' evaluations in 1 and 10 lanes",
     )
+    p.add_argument(
+        "--rollout-cost",
+        nargs=2,
+        type=Path,
+        metavar=("MISSION", "FOLDER"),
+        help="a finished `ltlnav train MISSION --out FOLDER`: time its mission rollouts in one "
+        "process and over --jobs processes",
+    )
     args = p.parse_args(argv)
+    if args.rollout_cost is not None:
+        mission_file, folder = args.rollout_cost
+        print(rollout_cost(mission_file, folder, args.jobs))
+        return
     if args.evaluation_cost is not None:
         print(evaluation_cost(args.evaluation_cost))
         return
