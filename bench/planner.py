@@ -43,6 +43,7 @@ SHARED = ROOT.parent / "shared" / "benchmarks"
 EXAMPLES = [
     "car-phi2-fin",
     "car-phi2-inf",
+    "car-phi3-fin",
     "quad-phi1-fin",
     "quad-phi1-inf",
     "quad-phi3-fin",
@@ -57,6 +58,7 @@ LTL2BA_SIZES = {
     "car-phi2-inf": "9 / 43",
     "quad-phi1-fin": "8 / 27",
     "quad-phi1-inf": "4 / 13",
+    "car-phi3-fin": "13 / 90",
     "quad-phi3-fin": "13 / 90",
     "quad-phi3-inf": "13 / >10 min",
 }

@@ -19,6 +19,7 @@ SEQUENCE_12 += "g11 && <>g12" + ")" * 11
 TASKS = {
     "car-phi2-fin": "[]!obstacle && <>(g1 && <>(g2 && <>(g3 && <>ginit)))",
     "car-phi2-inf": "[]!obstacle && []<>(g1 && <>(g2 && <>g3))",
+    "car-phi3-fin": SEQUENCE_12,
     "racecar-phi2-fin": "[]!obstacle && <>(g1 && <>(g2 && <>(g3 && <>ginit)))",
     "quad-phi1-fin": "[]!obstacle && <>g1 && <>g2 && <>g3",
     "quad-phi1-inf": "[]!obstacle && []<>g1 && []<>g2 && []<>g3",
@@ -28,7 +29,8 @@ TASKS = {
     "tlrrt-gf3": "[]<>l1 && []<>l2 && []<>l3",
 }
 WORLDS = {"car": (2, 50, 4), "racecar": (2, 50, 4), "quad": (3, 25, 12), "tlrrt": (2, 2, 6)}
-"""Per family: dimension, obstacles, regions."""
+"""Per family: dimension, obstacles, regions (``WORLD_OF`` for an example with other regions)."""
+WORLD_OF = {"car-phi3-fin": (2, 50, 12)}
 
 
 def load(name: str) -> MissionSpec:
@@ -47,9 +49,11 @@ def test_example_loads_with_its_task(name: str) -> None:
     spec = load(name)
     assert spec.name == name
     assert parse(spec.task) == parse(TASKS[name])
-    dim, obstacles, regions = WORLDS[name.split("-")[0]]
+    dim, obstacles, regions = WORLD_OF.get(name) or WORLDS[name.split("-")[0]]
     world = spec.build_world()
     assert (world.dim, len(world.obstacles), len(world.region_names)) == (dim, obstacles, regions)
+    if name == "car-phi3-fin":  # the car world's boxes, its own goals
+        assert spec.world.obstacles == load("car-phi2-fin").world.obstacles
     assert atoms(parse(spec.task)) - {"obstacle"} <= set(world.region_names)
 
 
@@ -78,7 +82,9 @@ def reachable_goals(spec: MissionSpec, cell: float) -> dict[str, bool]:
     return {name: bool(np.any(labels[:, j] & mine)) for j, name in enumerate(world.region_names)}
 
 
-@pytest.mark.parametrize(("name", "cell"), [("car-phi2-fin", 0.05), ("quad-phi3-inf", 0.1)])
+@pytest.mark.parametrize(
+    ("name", "cell"), [("car-phi2-fin", 0.05), ("car-phi3-fin", 0.05), ("quad-phi3-inf", 0.1)]
+)
 def test_every_goal_is_reachable(name: str, cell: float) -> None:
     reached = reachable_goals(load(name), cell)
     assert all(reached.values()), reached
