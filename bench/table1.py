@@ -1,0 +1,294 @@
+"""Table I of Cai et al. (RA-L 2023) complete: every row, every method, two protocols, the
+control, evaluations nobody selected on (issue 19).
+
+Rows (``TASKS``): phi_1,fin and phi_1,inf on the quadrotor, phi_2,fin and phi_2,inf on the car
+(unicycle) and phi_2,fin on the racecar, phi_3,fin (12 goals) on the quadrotor and on the car,
+phi_3,inf on the quadrotor. Columns: the reward methods ``rrt`` (ours), ``rrt-paper``, ``ned``,
+``tl`` and ``g-rrt`` (one agent for the whole lasso, with every sub-task's budget), each on
+``SEEDS``, and the control ``zero`` (the zero action: under ``shaped`` that is the robot's
+feed-forward alone), evaluated like a policy. Protocols (``workers.training_spec.Protocol``):
+``shaped`` (every method the identical env, only the reward differs) and ``paper`` (Cai et al.'s
+env as published). One budget per row for every method (``TASKS``), no hand-over repair (it
+would give the methods whose missions fail more steps than the budget).
+
+Every run trains with ``bench/train.py``'s runner (the production ``MissionRun``) on the row's
+one plan into ``OUT/<mission>/<method>+protocol=<p>.../seed<N>/``, one run after another, each
+with ``--jobs`` processes, and its wall time from start to its last rollout is measured and
+kept in ``wall.json``. The reported figures come from evaluations no decision used
+(``workers.training``: the final 200 trials at ``seed + 2``; ``workers.run``: the rollouts at
+``seed + 7``). Runs that finished are reused, so the command resumes; ``--report`` re-prints
+``TABLE1.md`` and the figures from what is on disk.
+
+The whole table is 7 rows x 2 protocols x 5 methods x 3 seeds = 210 runs: at the budgets below
+that is several days on two cores, so ``--rows``, ``--protocols``, ``--methods`` and
+``--seeds`` choose a part (the default is everything).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.append(str(Path(__file__).resolve().parent))
+
+import numpy as np  # noqa: E402
+from train import Row, load_mission, row_figures, row_jobs, run_rows  # noqa: E402
+
+METHODS = ("rrt", "rrt-paper", "ned", "tl", "g-rrt")
+PROTOCOLS = ("shaped", "paper")
+SEEDS = (0, 1, 2)
+
+
+@dataclass(frozen=True)
+class Task:
+    """One row of the table: an example mission and the budget of every method on it."""
+
+    name: str
+    label: str
+    budget: int
+    """Env steps per sub-task (``g-rrt``: times the number of sub-tasks, for its one agent)."""
+
+
+TASKS = (
+    Task("quad-phi1-fin", "phi_1,fin quadrotor", 30_000),
+    Task("quad-phi1-inf", "phi_1,inf quadrotor", 30_000),
+    Task("car-phi2-fin", "phi_2,fin car", 30_000),
+    Task("car-phi2-inf", "phi_2,inf car", 30_000),
+    Task("racecar-phi2-fin", "phi_2,fin racecar", 30_000),
+    Task("quad-phi3-fin", "phi_3,fin quadrotor", 20_000),
+    Task("car-phi3-fin", "phi_3,fin car", 20_000),
+    Task("quad-phi3-inf", "phi_3,inf quadrotor", 20_000),
+)
+PAPER_FIGURES = "D-RRT* ~100 %, TL / NED / G-RRT* 0 %; 10k-20k episodes per task"
+"""What the paper's Table I reports per row, for comparison (its own units: episodes)."""
+
+
+def run_row(task: Task, method: str, protocol: str, seed: int) -> Row:
+    """The bench/train.py row of one run."""
+    training = (("handover_rounds", 0), ("protocol", protocol))
+    return Row(task.name, method, seed, None, task.budget, training=training)
+
+
+def subtask_count(task: Task, out: Path) -> int:
+    _, jobs = row_jobs(run_row(task, "rrt", "shaped", 0), out)
+    return len(jobs)
+
+
+def train(task: Task, method: str, protocol: str, seed: int, out: Path, jobs: int) -> None:
+    """Train one run unless its ``wall.json`` says it finished; measure its wall time."""
+    row = run_row(task, method, protocol, seed)
+    if method == "g-rrt":
+        row = replace(row, timesteps=task.budget * subtask_count(task, out))
+    record = out / row.folder / "wall.json"
+    if record.is_file():
+        return
+    started = time.monotonic()
+    run_rows([row], out, jobs)
+    record.write_text(json.dumps({"seconds": time.monotonic() - started, "jobs": jobs}))
+
+
+def zero_action(dim: int) -> Callable[[np.ndarray], np.ndarray]:
+    """The zero action for a batch of observations (one row per lane)."""
+
+    def act(observations: np.ndarray) -> np.ndarray:
+        return np.zeros((len(observations), dim), dtype=np.float32)
+
+    return act
+
+
+def zero_control(task: Task, protocol: str, out: Path) -> dict[str, Any]:
+    """The zero action evaluated like a policy on the row's plan, stored in ``zero.json``."""
+    from envs.mission_env import MissionEnv
+    from workers.evaluation import evaluate_subtask, rollout_mission
+    from workers.run import EVALUATION_SEED, stored_or_new_plan
+    from workers.training import REPORT_SEED, subtask_env
+
+    record = out / task.name / f"zero+protocol={protocol}" / "zero.json"
+    if record.is_file():
+        figures: dict[str, Any] = json.loads(record.read_text())
+        return figures
+    row = run_row(task, "rrt", protocol, 0)
+    mission = load_mission(task.name, row)
+    training = mission.training
+    plan = stored_or_new_plan(mission, out / row.folder)
+    rates = []
+    lanes = training.eval_lanes
+    for k in range(len(plan.subtasks)):
+        envs = [subtask_env(mission, plan, training, k, evaluation=True) for _ in range(lanes)]
+        try:
+            act = zero_action(envs[0].robot.action_dim)
+            episodes = training.final_eval_episodes
+            rates.append(evaluate_subtask(act, envs, episodes, seed=REPORT_SEED).success_rate)
+        finally:
+            for env in envs:
+                env.close()
+    options = training.eval_env_options(mission.robot.model)
+    wholes = [MissionEnv(mission, plan, options, training.cycles) for _ in range(lanes)]
+    try:
+        act = zero_action(wholes[0].robot.action_dim)
+        seed = training.seed + EVALUATION_SEED
+        rollouts = rollout_mission(act, wholes, training.mission_episodes, seed=seed)
+    finally:
+        for whole in wholes:
+            whole.close()
+    figures = {"subtasks": rates, "mission": rollouts.success_rate}
+    record.parent.mkdir(parents=True, exist_ok=True)
+    record.write_text(json.dumps(figures))
+    return figures
+
+
+def run_figures(task: Task, method: str, protocol: str, seed: int, out: Path) -> dict[str, Any]:
+    """Sub-task successes, steps, mission success and wall time of a finished run ({}:
+    not run)."""
+    row = run_row(task, method, protocol, seed)
+    wall = out / row.folder / "wall.json"
+    fig = row_figures(row, out)
+    if fig is None or not wall.is_file():
+        return {}
+    results = fig["results"]
+    return {
+        "subtasks": [(r.get("final") or {}).get("success_rate", 0.0) for r in results],
+        "steps": [r["steps"] for r in results],
+        "met": [r["stopped"] == "target" for r in results],
+        "mission": None if fig["mission"] is None else fig["mission"]["success_rate"],
+        "wall": json.loads(wall.read_text())["seconds"],
+    }
+
+
+def _pct(x: float | None) -> str:
+    return "-" if x is None else f"{100 * x:.0f} %"
+
+
+def cell(runs: list[dict[str, Any]]) -> list[str]:
+    """Median / worst sub-task success, missions per seed, median steps, median wall."""
+    done = [r for r in runs if r]
+    if not done:
+        return ["not run"] * 5
+    rates = [x for r in done for x in r["subtasks"]]
+    missions = " / ".join(_pct(r["mission"]) for r in done)
+    steps = [s for r in done for s in r["steps"]]
+    walls = [r["wall"] for r in done]
+    return [
+        f"{_pct(statistics.median(rates))} ({_pct(min(rates))})",
+        f"{missions} ({len(done)} seeds)",
+        f"{statistics.median(steps) / 1000:.0f}k",
+        f"{statistics.median(walls) / 60:.1f} min",
+        f"{sum(1 for r in done for m in r['met'] if m)} of {sum(len(r['met']) for r in done)}",
+    ]
+
+
+def report(
+    tasks: list[Task], methods: list[str], protocols: list[str], seeds: list[int], out: Path
+) -> str:
+    """``TABLE1.md``: one table per protocol, a line per (row, method) and the control."""
+    lines = ["# Table I (bench/table1.py)", ""]
+    for protocol in protocols:
+        lines += [
+            f"## Protocol `{protocol}`",
+            "",
+            "| task | budget / sub-task | method | sub-task success median (worst) | "
+            "mission success per seed | median steps | median wall | sub-tasks met |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
+        for task in tasks:
+            for method in methods:
+                runs = [run_figures(task, method, protocol, s, out) for s in seeds]
+                lines.append(
+                    f"| {task.label} | {task.budget // 1000}k | {method} | "
+                    + " | ".join(cell(runs))
+                    + " |"
+                )
+            zero = out / task.name / f"zero+protocol={protocol}" / "zero.json"
+            if zero.is_file():
+                z = json.loads(zero.read_text())
+                rates = z["subtasks"]
+                lines.append(
+                    f"| {task.label} | - | zero (control) | {_pct(statistics.median(rates))} "
+                    f"({_pct(min(rates))}) | {_pct(z['mission'])} | 0 | - | - |"
+                )
+            lines.append(f"| {task.label} | paper | (Cai et al.) | {PAPER_FIGURES} | | | | |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def curves(
+    task: Task, methods: list[str], protocol: str, seeds: list[int], out: Path, path: Path
+) -> None:
+    """Success rate against env steps, per method: median over seeds and sub-tasks of the
+    periodic evaluations, band from min to max."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(figsize=(6, 4))
+    for method in methods:
+        series: list[np.ndarray] = []
+        steps: np.ndarray | None = None
+        for seed in seeds:
+            folder = out / run_row(task, method, protocol, seed).folder
+            for npz in sorted(folder.glob("subtask_*/evaluations.npz")):
+                data = np.load(npz)
+                if steps is None or len(data["timesteps"]) > len(steps):
+                    steps = data["timesteps"]
+                series.append(data["successes"].mean(axis=1))
+        if not series or steps is None:
+            continue
+        grid = np.full((len(series), len(steps)), np.nan)
+        for i, s in enumerate(series):
+            grid[i, : len(s)] = s
+            grid[i, len(s) :] = s[-1]  # an early stop holds its last rate
+        axes.plot(steps, np.nanmedian(grid, axis=0), label=method)
+        axes.fill_between(steps, np.nanmin(grid, axis=0), np.nanmax(grid, axis=0), alpha=0.2)
+    axes.set(xlabel="env steps", ylabel="success rate", title=f"{task.label} ({protocol})")
+    if axes.lines:
+        axes.legend()
+    else:
+        axes.text(0.5, 0.5, "no periodic evaluation yet", ha="center", transform=axes.transAxes)
+    figure.savefig(path, dpi=100, bbox_inches="tight")
+    plt.close(figure)
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--rows", nargs="*", default=[t.name for t in TASKS], help="example names")
+    p.add_argument("--methods", nargs="*", default=list(METHODS), choices=METHODS)
+    p.add_argument("--protocols", nargs="*", default=list(PROTOCOLS), choices=PROTOCOLS)
+    p.add_argument("--seeds", nargs="*", type=int, default=list(SEEDS))
+    p.add_argument("--jobs", type=int, default=2, help="training processes per run")
+    p.add_argument("--out", type=Path, default=ROOT / "var" / "bench" / "table1")
+    p.add_argument("--budget", type=int, help="steps per sub-task of every row (smoke runs)")
+    p.add_argument("--report", action="store_true", help="re-print TABLE1.md from disk")
+    args = p.parse_args(argv)
+    tasks = [t for t in TASKS if t.name in args.rows]
+    if args.budget is not None:
+        tasks = [Task(t.name, t.label, args.budget) for t in tasks]
+    if not args.report:
+        for task in tasks:
+            for protocol in args.protocols:
+                zero_control(task, protocol, args.out)
+                for seed in args.seeds:
+                    for method in args.methods:
+                        train(task, method, protocol, seed, args.out, args.jobs)
+    text = report(tasks, args.methods, args.protocols, args.seeds, args.out)
+    (args.out / "TABLE1.md").write_text(text)
+    for task in tasks:
+        for protocol in args.protocols:
+            picture = args.out / f"{task.name}-{protocol}.png"
+            curves(task, args.methods, protocol, args.seeds, args.out, picture)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
