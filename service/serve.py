@@ -113,6 +113,7 @@ def serve(
     refuse_open_exposure(settings, host)
     settings.make_dirs()
     upgrade(settings.database_url)
+    app = create_app(settings)
     base = f"http://{display_host(host)}:{port}"
     if not settings.api_keys:
         say("the API is open: no API keys are configured (set LTLNAV_API_KEYS to require them)")
@@ -124,7 +125,6 @@ def serve(
     say(f"dashboard: {base}/   API docs: {base}/docs   data: {settings.data_dir}")
     previous = signal.signal(signal.SIGTERM, _terminate)
     try:
-        app = create_app(settings)
         uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level="info")).run()
     except KeyboardInterrupt:
         pass

@@ -62,8 +62,8 @@ def run_pipeline(
 ) -> RunResult:
     """Open the run of ``mission`` in ``out_dir``, train its sub-tasks (``jobs`` processes,
     default the CPU count), roll out the concatenated policy (its lanes shared out over the
-    same processes), repair hand-overs while the
-    mission is below its target and write ``out_dir/bundle.zip``. The training section
+    same processes), repair hand-overs while the mission is below its target and write
+    ``out_dir/bundle.zip``. The training section
     (budget, seed, ...) is the mission's own: override it on the spec before calling.
     ``limits``: see ``MissionRun.open``."""
     run = MissionRun.open(mission, out_dir, limits)

@@ -144,8 +144,8 @@ GUIDE_ENV_DEFAULTS: dict[str, dict[str, Any]] = {
         "progress_window": 2,
     },
 }
-"""Defaults per robot of the ``shaped`` protocol, in training and evaluation alike (they change what
-an action means and which guide the reward follows). Measured in ``bench/LEARNING.md``:
+"""Defaults per robot of the ``shaped`` protocol, in training and evaluation alike (they change
+what an action means and which guide the reward follows). Measured in ``bench/LEARNING.md``:
 
 * point: the acceleration that brings it to top speed toward the guide's point one braking
   length ahead (``envs.feedforward.velocity_command``): on generated 21 x 21 m mazes of 0.3 m
