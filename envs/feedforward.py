@@ -221,9 +221,10 @@ class ActionShaping:
                 target = pursuit_target(track, index, x, ahead)
                 turn = pursuit_turn(robot.heading(), x, target, self.pursuit)
             else:
-                toward = carrot_direction(guide.centers, index, x)
                 if robot.name == "point":
                     toward = velocity_command(robot, track, index, x)
+                else:
+                    toward = carrot_direction(guide.centers, index, x)
                 if robot.name in WORLD_FRAME_ROBOTS:
                     return with_feedforward(a, self.gain, toward)
                 turn = steering_toward(robot.heading(), toward)
