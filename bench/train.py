@@ -29,7 +29,6 @@ import argparse
 import contextlib
 import dataclasses
 import json
-import multiprocessing
 import os
 import shutil
 import signal
@@ -51,6 +50,7 @@ import yaml  # noqa: E402
 
 from workers.jobs import SubtaskJob  # noqa: E402
 from workers.mission import MissionSpec, parse_mission  # noqa: E402
+from workers.pipeline import training_context  # noqa: E402
 from workers.run import MissionRun, stored_or_new_plan  # noqa: E402
 
 METHODS = ("rrt", "rrt-paper", "ned", "tl", "g-rrt")
@@ -217,8 +217,7 @@ def _reaped(pool: ProcessPoolExecutor) -> Iterator[None]:
 
 def run_rows(rows: list[Row], out: Path, jobs: int) -> None:
     """Train every row's jobs, ``jobs`` at a time, then roll out the complete rows."""
-    context = multiprocessing.get_context("forkserver")
-    context.set_forkserver_preload(["workers.training"])
+    context = training_context()
     planned = [(row, *row_jobs(row, out)) for row in rows]
     signal.signal(signal.SIGTERM, _interrupt)
     with ProcessPoolExecutor(max_workers=jobs, mp_context=context) as pool, _reaped(pool):

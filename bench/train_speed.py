@@ -199,10 +199,10 @@ def rollout_cost(mission_file: Path, folder: Path, processes: int) -> str:
     against its lanes shared out over a pool of ``processes`` (started before the clock, as
     ``ltlnav train``'s is), alternated twice."""
     sys.path.insert(0, str(ROOT))
-    import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
     from workers.mission import load_mission
+    from workers.pipeline import training_context
     from workers.run import MissionRun, Spread
     from workers.training import TrainResult
 
@@ -211,8 +211,7 @@ def rollout_cost(mission_file: Path, folder: Path, processes: int) -> str:
         TrainResult.from_json(json.loads((run.job_folder(job) / "result.json").read_text()))
         for job in run.jobs()
     ]
-    context = multiprocessing.get_context("forkserver")
-    context.set_forkserver_preload(["workers.training"])
+    context = training_context()
     seconds: dict[str, list[float]] = {"one process": [], f"{processes} processes": []}
     rates: dict[str, float] = {}
     with ProcessPoolExecutor(max_workers=processes, mp_context=context) as pool:

@@ -53,6 +53,15 @@ def _run_job(run: MissionRun, job: SubtaskJob, updates: Any, offset: int) -> Tra
     return result
 
 
+def training_context() -> multiprocessing.context.ForkServerContext:
+    """The process context of training pools: workers fork from a clean single-threaded server
+    (a driver may run threads, as the pipeline's relay), which imports torch and
+    stable-baselines3 once for all of them."""
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(["workers.training"])
+    return context
+
+
 def run_pipeline(
     mission: MissionSpec,
     out_dir: str | Path,
@@ -72,10 +81,7 @@ def run_pipeline(
         for job in first:
             on_progress(job.subtask, 0, None, job.training.n_timesteps, False)
     workers = max(1, min(jobs or os.cpu_count() or 1, len(first)))
-    # forkserver: workers fork from a clean single-threaded server (this process runs a relay
-    # thread), which imports torch and stable-baselines3 once for all of them.
-    context = multiprocessing.get_context("forkserver")
-    context.set_forkserver_preload(["workers.training"])
+    context = training_context()
     with context.Manager() as manager:
         updates = manager.Queue()
         done = threading.Event()
