@@ -316,7 +316,9 @@ def _units(cfg: Config, subtask: int) -> tuple[Any, Any, Any, list[tuple[str, An
     mission = load_mission(MISSION)
     world = mission.build_world()
     clearance = mission.robot.radius + cfg.extra_clearance
-    plan = plan_mission(world, mission.task, mission.robot.position(), clearance, mission.planner)
+    plan = plan_mission(
+        world, mission.task, mission.robot.position(), clearance, mission.planner_options()
+    )
     sub = plan.subtasks[subtask]
     if cfg.split is None:
         return mission, world, plan, [(str(subtask), sub)]

@@ -89,10 +89,10 @@ spec = load_mission(sys.argv[1])
 seed = int(sys.argv[2])
 world = spec.build_world()
 start, radius = spec.robot.position(), spec.robot.radius
-first_options = spec.planner.model_copy(
+first_options = spec.planner_options().model_copy(
     update={"seed": seed, "refine_seconds": 0.0, "shortcut": False}
 )
-final_options = spec.planner.model_copy(update={"seed": seed})
+final_options = spec.planner_options().model_copy(update={"seed": seed})
 try:
     began = time.process_time()
     first = plan_mission(world, spec.task, start, radius, first_options)

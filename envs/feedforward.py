@@ -2,17 +2,18 @@
 carrot that the policy's action corrects; :class:`ActionShaping` applies it, and
 ``EnvOptions.min_forward``, to every action of the env.
 
-The carrot is the centre of the r-ball ``AHEAD`` balls past the robot's progress index on the
-current leg (the leg's last ball at most). For robots commanded by a world-frame velocity
-(quadrotor) the env adds ``gain`` times the unit vector toward it to the policy's action; for
-the point robot, commanded by an acceleration, ``gain`` times the command that brings its
-velocity toward ``max_speed`` along that unit vector (the velocity error over ``max_speed``:
-full acceleration from rest, none at top speed toward the carrot, braking when it moves away);
-for robots driven by (forward, turn) actions (unicycle, racecar) ``gain`` times a turn command
-toward it (proportional to the heading error, full at 90 degrees or more) to the turn
-component. Sums are clipped to ``[-1, 1]``. Following the guide is then what a zero action
-does; the policy learns the correction around boxes and into the goal (residual policy
-learning, Silver et al. 2018; Johannink et al. 2019), instead of first having
+The quadrotor, commanded by a world-frame velocity, gets ``gain`` times the unit vector toward
+the point of the guide ``QUADROTOR_LOOKAHEAD`` seconds of its top speed past its projection on
+the guide, added to the policy's action. The point robot, commanded by an acceleration, gets
+``gain`` times the command that brings its velocity toward ``max_speed`` in the direction of
+the point one braking length ahead on the guide (the velocity error over ``max_speed``: full
+acceleration from rest, none at top speed toward it, braking when it moves away). Robots
+driven by (forward, turn) actions (unicycle, racecar) get ``gain`` times a turn command toward
+the carrot, the centre of the r-ball ``AHEAD`` balls past the robot's progress index on the
+current leg (the leg's last ball at most), on the turn component (proportional to the heading
+error, full at 90 degrees or more). Sums are clipped to ``[-1, 1]``. Following the guide is then
+what a zero action does; the policy learns the correction around boxes and into the goal
+(residual policy learning, Silver et al. 2018; Johannink et al. 2019), instead of first having
 to discover motion at all.
 
 For robots with a minimum turning radius (racecar) ``EnvOptions.feedforward_law = "pursuit"``
@@ -37,6 +38,7 @@ from envs.errors import EnvConfigError
 from envs.observation import HEADING_FEATURES
 from envs.robots.base import Robot, wrap_angle
 from envs.robots.point import PointParams
+from envs.robots.quadrotor import QuadrotorParams
 from planner.geometry.drivable import arc_lengths
 from planner.guidance import Guide
 
@@ -51,6 +53,13 @@ PURSUIT_LOOKAHEAD = 1.3
 guides turn on 1.45 radii: with it the zero action drives every sub-task of
 ``examples/racecar-phi2-fin.yaml``, ``bench/zero_policy.py``)."""
 
+QUADROTOR_LOOKAHEAD = 0.5
+"""Seconds of the quadrotor's top speed that its feed-forward target runs ahead on the guide.
+A tenth of the generated 3D cities of ``bench/generality.py`` (tuning seeds 0-19, zero action,
+20 starts a sub-task, planner margin 0.3 m) measured the lookahead: 0.25 and 0.5 s hold every
+sub-task, 1 s collides on one of 52; the carrot two balls ahead (1-4 m: the balls are r-balls
+of a fortieth of the world's diagonal) cut the corners of the towers on 17 of 52."""
+
 WORLD_FRAME_ROBOTS = frozenset({"point", "quadrotor"})
 """Robots whose action is a world-frame command, one component per workspace axis."""
 
@@ -62,6 +71,16 @@ def carrot_direction(
     zeros at the carrot."""
     target = centres[min(max(index, -1) + AHEAD, len(centres) - 1)]
     offset = target - np.asarray(x, dtype=float)
+    norm = float(np.linalg.norm(offset))
+    return offset / norm if norm > 1e-9 else np.zeros_like(offset)
+
+
+def pursuit_direction(
+    track: Track, index: int, x: Sequence[float] | np.ndarray, ahead: float
+) -> np.ndarray:
+    """Unit vector from ``x`` to the point ``ahead`` along ``track`` past its projection on it
+    (:func:`pursuit_target`); zeros at that point."""
+    offset = pursuit_target(track, index, x, ahead) - np.asarray(x, dtype=float)
     norm = float(np.linalg.norm(offset))
     return offset / norm if norm > 1e-9 else np.zeros_like(offset)
 
@@ -81,12 +100,19 @@ def velocity_command(
     params = robot.params
     assert isinstance(params, PointParams)
     top = params.max_speed
-    ahead = top * top / params.max_accel
-    offset = pursuit_target(track, index, x, ahead) - np.asarray(x, dtype=float)
-    norm = float(np.linalg.norm(offset))
-    direction = offset / norm if norm > 1e-9 else np.zeros_like(offset)
+    direction = pursuit_direction(track, index, x, top * top / params.max_accel)
     velocity = np.asarray(robot.state, dtype=float)[len(direction) :]
     return np.asarray(direction - velocity / top)
+
+
+def flight_direction(
+    robot: Robot, track: Track, index: int, x: Sequence[float] | np.ndarray
+) -> np.ndarray:
+    """Velocity direction of the quadrotor: toward the point of ``track``
+    ``QUADROTOR_LOOKAHEAD`` seconds of its top speed ahead."""
+    params = robot.params
+    assert isinstance(params, QuadrotorParams)
+    return pursuit_direction(track, index, x, QUADROTOR_LOOKAHEAD * params.max_speed)
 
 
 def steering_toward(heading: float, direction: np.ndarray) -> float:
@@ -223,6 +249,8 @@ class ActionShaping:
             else:
                 if robot.name == "point":
                     toward = velocity_command(robot, track, index, x)
+                elif robot.name == "quadrotor":
+                    toward = flight_direction(robot, track, index, x)
                 else:
                     toward = carrot_direction(guide.centers, index, x)
                 if robot.name in WORLD_FRAME_ROBOTS:

@@ -113,13 +113,14 @@ def plan_mission(
     options: PlannerSpec | None = None,
 ) -> MissionPlan:
     """Plan ``task`` (LTL text) in ``world`` for a robot of radius ``clearance`` at ``start``,
-    keeping ``options.margin`` more where a plan exists with it.
+    keeping ``options.margin`` more where a plan exists with it (None: none; a mission's
+    ``MissionSpec.planner_options`` gives its robot's).
 
     Raises FormulaError for a bad formula and PlanningError when no plan exists or none was
     found within the budget (the message says which).
     """
     opts = options if options is not None else PlannerSpec()
-    if opts.margin > 0:
+    if opts.margin:
         # An iteration cap, not the CPU time limit, ends the attempt with the margin, so the
         # choice between the two clearances is the same on every machine.
         cap = min(opts.max_iterations, MARGIN_ITERATIONS)

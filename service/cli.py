@@ -91,7 +91,9 @@ def plan(
 
     try:
         spec = load_mission(mission)
-        options = spec.planner if seed is None else spec.planner.model_copy(update={"seed": seed})
+        options = spec.planner_options()
+        if seed is not None:
+            options = options.model_copy(update={"seed": seed})
         world = spec.build_world()
         result = plan_mission(world, spec.task, spec.robot.position(), spec.robot.radius, options)
     except LtlnavError as error:

@@ -287,6 +287,7 @@ def stored_or_new_plan(
     states than ``limits.max_automaton_states`` (default ``AdmissionLimits()``)."""
     stored = folder / PLAN_FILE
     planning = mission.model_dump(mode="json", exclude={"training"})
+    planning["planner"] = mission.planner_options().model_dump(mode="json")
     saved = _read_plan_file(stored)
     if saved is not None and saved.get("mission") == planning:
         try:
@@ -299,7 +300,9 @@ def stored_or_new_plan(
     too_large = automaton_problems(nba.num_states, pruned.num_states, limits or AdmissionLimits())
     if too_large:
         raise MissionError(too_large)
-    plan = plan_mission(world, mission.task, mission.robot.position(), radius, mission.planner)
+    plan = plan_mission(
+        world, mission.task, mission.robot.position(), radius, mission.planner_options()
+    )
     problems = verify_plan(plan, world, radius)
     if problems:
         raise PlanningError("the plan failed its own check: " + "; ".join(problems))

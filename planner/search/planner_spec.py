@@ -63,13 +63,15 @@ class PlannerSpec(BaseModel):
         description="Lasso cost = prefix_weight * prefix length + (1 - prefix_weight) "
         "* suffix length, as in TL-RRT*.",
     )
-    margin: float = Field(
-        0.0,
+    margin: float | None = Field(
+        None,
         ge=0,
         description="Extra clearance (workspace units) the guide keeps from obstacles beyond the "
         "robot radius: the lasso is planned with radius + margin, and with the radius alone "
         "when that finds no plan (a passage too narrow). A unicycle swings out at every corner "
-        "of the guide; a margin keeps following it off the boxes (bench/LEARNING.md).",
+        "of the guide; a margin keeps following it off the boxes (bench/LEARNING.md). Default: "
+        "the robot's own (0.3 for the quadrotor, whose feed-forward cuts the corners of a guide "
+        "that grazes a tower; 0 for the others).",
     )
     shortcut: bool = Field(
         True,
