@@ -54,6 +54,21 @@ def problems(data: dict[str, Any]) -> list[tuple[str, str]]:
     return err.problems
 
 
+def test_the_planner_margin_defaults_to_the_robots_own() -> None:
+    unset = parse_mission(mission())
+    assert unset.planner.margin is None
+    assert unset.planner_options().margin == 0.0
+    assert unset.planner_options().seed == 3
+    quad = {"model": "quadrotor", "start": [-8, -8, 1], "radius": 0.2}
+    world = {**BASE["world"], "bounds": [[-10, 10], [-10, 10], [0, 4]]}
+    world["obstacles"] = [{"box": {"min": [1, 1, 0], "max": [2, 3, 4]}}]
+    world["regions"] = {"g1": {"ball": {"center": [8, 8, 2], "radius": 1}}}
+    flying = parse_mission(mission(robot=quad, world=world, task="<>g1"))
+    assert flying.planner_options().margin == 0.3
+    chosen = parse_mission(mission(robot=quad, world=world, task="<>g1", planner={"margin": 0}))
+    assert chosen.planner_options().margin == 0.0  # a mission's own margin, even 0, is kept
+
+
 def test_valid_mission() -> None:
     spec = parse_mission(mission())
     assert spec.name == "small"
