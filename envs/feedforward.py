@@ -55,10 +55,11 @@ guides turn on 1.45 radii: with it the zero action drives every sub-task of
 
 QUADROTOR_LOOKAHEAD = 0.5
 """Seconds of the quadrotor's top speed that its feed-forward target runs ahead on the guide.
-A tenth of the generated 3D cities of ``bench/generality.py`` (tuning seeds 0-19, zero action,
-20 starts a sub-task, planner margin 0.3 m) measured the lookahead: 0.25 and 0.5 s hold every
-sub-task, 1 s collides on one of 52; the carrot two balls ahead (1-4 m: the balls are r-balls
-of a fortieth of the world's diagonal) cut the corners of the towers on 17 of 52."""
+Measured with the zero action on the generated 3D cities of ``bench/generality.py`` (tuning
+seeds 0-19, 20 starts a sub-task, planner margin 0.3 m): 0.5 s holds 52 of 52 sub-tasks (54 of
+54 on seeds 20-39), 1 s 51 of 52; the carrot two balls ahead, which it replaced, 35 of 52 (its
+chord cuts the towers' corners where the r-balls are wide)."""
+
 
 WORLD_FRAME_ROBOTS = frozenset({"point", "quadrotor"})
 """Robots whose action is a world-frame command, one component per workspace axis."""
