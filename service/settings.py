@@ -220,6 +220,11 @@ class Settings(BaseSettings):
     this many days after they ended, and progress events of every ended mission too; the
     mission, its results and ``DELETE /missions/{id}`` are unaffected."""
 
+    idempotency_key_hours: float = Field(default=24.0, gt=0)
+    """A repeated ``Idempotency-Key`` answers with its first mission for this long after that
+    mission was submitted; afterwards the key makes a new mission (keys are meant for retries
+    after a timeout, not as names kept forever)."""
+
     quota_active_missions: int = Field(default=4, ge=0)
     """Missions one API key may have queued or running (planning, training, evaluating) at
     once; one more is refused with 429 until one ends. A 2-core machine trains two sub-tasks

@@ -10,7 +10,7 @@ concurrent submissions cannot overrun a quota."""
 from __future__ import annotations
 
 import math
-from datetime import datetime
+from datetime import datetime, timedelta
 from typing import Annotated
 
 from fastapi import Depends, FastAPI, Header, HTTPException, Request, status
@@ -40,11 +40,18 @@ IdempotencyKey = Annotated[
         min_length=1,
         max_length=IDEMPOTENCY_KEY_MAX,
         description="Any unique string (a UUID, say) of at most 200 characters. A request that "
-        "repeats one already used by the same API key creates nothing: it answers 200 with "
-        "the first mission's submission answer (the body that request got with its 201), so "
-        "a client may retry after a timeout without making duplicates.",
+        "repeats one the same API key used in the last LTLNAV_IDEMPOTENCY_KEY_HOURS (24) "
+        "creates nothing: it answers 200 with the first mission's submission answer (the body "
+        "that request got with its 201), so a client may retry after a timeout without making "
+        "duplicates. After that window the key makes a new mission.",
     ),
 ]
+
+
+def idempotency_since(settings: Settings) -> datetime:
+    """The oldest submission a repeated ``Idempotency-Key`` still answers with (on the clock
+    that stamps ``created_at``)."""
+    return utcnow() - timedelta(hours=settings.idempotency_key_hours)
 
 
 def submitted(mission_id: str) -> Submitted:
@@ -122,7 +129,8 @@ def admit(
     """The request's ``Idempotency-Key`` once the submission may go on: a repeated key raises
     ``ReplayedError`` (200, its first mission), a key over a quota 429."""
     if idempotency_key is not None:
-        earlier = repo.find_by_idempotency_key(session, api_key, idempotency_key)
+        since = idempotency_since(deps.settings)
+        earlier = repo.find_by_idempotency_key(session, api_key, idempotency_key, since)
         if earlier is not None:
             raise ReplayedError(earlier.id)
     refusal = quota_refusal(repo.quota_usage(session, api_key), deps.settings, api_key, adding=1)

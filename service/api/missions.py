@@ -12,7 +12,13 @@ from fastapi import APIRouter, HTTPException, Path, Query, status
 from fastapi.responses import FileResponse, Response
 
 from service import repository as repo
-from service.api.admission import Admitted, quota_refusal, replay_response, submitted
+from service.api.admission import (
+    Admitted,
+    idempotency_since,
+    quota_refusal,
+    replay_response,
+    submitted,
+)
 from service.api.deps import Caller, OwnedMission, ServicesDep, SessionDep
 from service.api.json_body import JsonBodyRoute
 from service.api.queries import cancel_if_queued
@@ -79,8 +85,9 @@ def submit_mission(
     # Counted again after the insert, in the transaction serialize_submissions orders: a
     # concurrent request with the same key, or one that filled the quota, is seen now.
     if idempotency_key is not None:
+        since = idempotency_since(deps.settings)
         earlier = repo.find_by_idempotency_key(
-            session, api_key, idempotency_key, other_than=mission.id
+            session, api_key, idempotency_key, since, other_than=mission.id
         )
         if earlier is not None:
             earlier_id = earlier.id

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass
+from datetime import datetime
 from typing import Any, Literal
 
 from sqlalchemy import delete, func, select, update
@@ -85,12 +86,20 @@ def get_owned_mission(session: Session, mission_id: str, api_key: str | None) ->
 
 
 def find_by_idempotency_key(
-    session: Session, api_key: str | None, idempotency_key: str, other_than: str | None = None
+    session: Session,
+    api_key: str | None,
+    idempotency_key: str,
+    since: datetime,
+    other_than: str | None = None,
 ) -> Mission | None:
-    """The first mission ``api_key`` submitted with ``idempotency_key`` (oldest; besides
-    ``other_than`` when given), or None. Keys are per API key: another key's missions never
-    match, and in the open API the owner matches with IS NULL."""
-    conditions = [_owned_by(api_key), Mission.idempotency_key == idempotency_key]
+    """The first mission ``api_key`` submitted with ``idempotency_key`` after ``since``
+    (oldest; besides ``other_than`` when given), or None. Keys are per API key: another key's
+    missions never match, and in the open API the owner matches with IS NULL."""
+    conditions = [
+        _owned_by(api_key),
+        Mission.idempotency_key == idempotency_key,
+        Mission.created_at > since,
+    ]
     if other_than is not None:
         conditions.append(Mission.id != other_than)
     query = select(Mission).where(*conditions).order_by(Mission.created_at, Mission.id).limit(1)

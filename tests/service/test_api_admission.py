@@ -197,6 +197,22 @@ def test_a_repeated_idempotency_key_returns_the_first_mission(
         assert mission is not None and mission.idempotency_key == "order-42"
 
 
+def test_an_idempotency_key_expires_after_its_window(
+    http: TestClient, database: Database, tmp_path: Path
+) -> None:
+    key = {**ALPHA, "Idempotency-Key": "nightly"}
+    first = http.post("/missions", json=tiny(), headers=key).json()["id"]
+    hours = settings_for(tmp_path, database.url).idempotency_key_hours
+    with database.session() as session, session.begin():
+        old = utcnow() - timedelta(hours=hours, minutes=1)
+        session.execute(update(Mission).where(Mission.id == first).values(created_at=old))
+    again = http.post("/missions", json=tiny(), headers=key)
+    assert again.status_code == 201 and again.json()["id"] != first
+    replay = http.post("/missions", json=tiny(), headers=key)
+    assert (replay.status_code, replay.json()["id"]) == (200, again.json()["id"])
+    assert _count(database) == 2
+
+
 def test_a_replay_is_answered_even_over_the_quota(database: Database, tmp_path: Path) -> None:
     with _http(database, tmp_path, keys=(), quota_active_missions=1) as http:
         key = {"Idempotency-Key": "only-once"}
