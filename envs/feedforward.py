@@ -70,10 +70,7 @@ def carrot_direction(
 ) -> np.ndarray:
     """Unit vector from ``x`` to the carrot of progress index ``index`` (-1: none reached);
     zeros at the carrot."""
-    target = centres[min(max(index, -1) + AHEAD, len(centres) - 1)]
-    offset = target - np.asarray(x, dtype=float)
-    norm = float(np.linalg.norm(offset))
-    return offset / norm if norm > 1e-9 else np.zeros_like(offset)
+    return unit_toward(centres[min(max(index, -1) + AHEAD, len(centres) - 1)], x)
 
 
 def pursuit_direction(
@@ -81,7 +78,12 @@ def pursuit_direction(
 ) -> np.ndarray:
     """Unit vector from ``x`` to the point ``ahead`` along ``track`` past its projection on it
     (:func:`pursuit_target`); zeros at that point."""
-    offset = pursuit_target(track, index, x, ahead) - np.asarray(x, dtype=float)
+    return unit_toward(pursuit_target(track, index, x, ahead), x)
+
+
+def unit_toward(target: np.ndarray, x: Sequence[float] | np.ndarray) -> np.ndarray:
+    """Unit vector from ``x`` to ``target``; zeros at ``target``."""
+    offset = np.asarray(target, dtype=float) - np.asarray(x, dtype=float)
     norm = float(np.linalg.norm(offset))
     return offset / norm if norm > 1e-9 else np.zeros_like(offset)
 
