@@ -53,3 +53,11 @@ class WorldError(FieldError):
 
 class PlanningError(LtlnavError):
     """A mission for which no plan was found; the message says why (unsatisfiable, budget)."""
+
+
+class AutomatonTooLargeError(PlanningError):
+    """A formula whose Büchi automaton outgrew the state budget of its translation."""
+
+    def __init__(self, max_states: int) -> None:
+        super().__init__(f"its Büchi automaton grows past {max_states} states while translating")
+        self.max_states = max_states

@@ -89,12 +89,15 @@ class MissionPlan:
         }
 
 
-def translate_task(task: str, world: World, clearance: float) -> tuple[Buchi, Buchi]:
+def translate_task(
+    task: str, world: World, clearance: float, max_states: int | None = None
+) -> tuple[Buchi, Buchi]:
     """The automaton of ``task`` and its pruning for ``world`` (FormulaError on bad input,
-    PlanningError when no accepting run survives pruning)."""
+    PlanningError when no accepting run survives pruning, AutomatonTooLargeError when the
+    translation outgrows ``max_states``)."""
     formula = parse(task)
     check_mission_formula(formula, task)
-    nba = translate(formula)
+    nba = translate(formula, max_states)
 
     def realisable(cube: Cube) -> bool:
         return world.realisable(cube.pos, cube.neg, clearance)

@@ -9,8 +9,9 @@ setting that raises it (``LTLNAV_`` + the field name in upper case, read by
 ``service.settings.Settings``; workers never read the environment).
 
 The checks of a document are ``workers.admission``'s (``admit``: the CLI's and the API's one
-entry point). The Büchi automaton's size is only known at planning time: ``automaton_problems``
-is checked by ``workers.run.stored_or_new_plan`` right after the translation.
+entry point). The Büchi automaton's size is only known at planning time:
+``workers.run.stored_or_new_plan`` translates within ``translation_budget`` and checks
+``automaton_problems`` right after.
 """
 
 from __future__ import annotations
@@ -127,6 +128,32 @@ def count_over(count: int, noun: str, name: str, limits: AdmissionLimits) -> str
     if count <= limit:
         return None
     return f"has {count} {noun}, over the limit {limit} ({limits.setting(name)})"
+
+
+TRANSLATION_FACTOR = 4
+"""The translation of a task stops once its automaton, before reduction and pruning (which
+only shrink it), has this many times ``max_automaton_states`` states: reduction shrinks some
+formulas' automata threefold (``<>a && <>b && <>(a && <>b)``: 9 states to 3), and 1,500 states
+translate in 10 s, where ``<>g1 && ... && <>g12`` (4,096) ran over two minutes and 660 MB
+before it was stopped; with the budget it is refused in 0.1 s."""
+
+
+def translation_budget(limits: AdmissionLimits) -> int:
+    """States the translation of a task may build (``TRANSLATION_FACTOR`` times the limit)."""
+    return TRANSLATION_FACTOR * limits.max_automaton_states
+
+
+def translation_problems(limits: AdmissionLimits) -> list[Problem]:
+    """Why a task whose translation outgrew ``translation_budget`` is refused."""
+    name = "max_automaton_states"
+    return [
+        (
+            "task",
+            f"its Büchi automaton grows past {translation_budget(limits)} states while "
+            f"translating ({TRANSLATION_FACTOR} times the limit {limits.max_automaton_states}, "
+            f"{limits.setting(name)}): split the mission or simplify the formula",
+        )
+    ]
 
 
 def automaton_problems(states: int, pruned: int, limits: AdmissionLimits) -> list[Problem]:

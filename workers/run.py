@@ -29,7 +29,7 @@ import torch
 
 from envs.mission_env import MissionEnv
 from planner.decompose import lasso_stages
-from planner.errors import PlanningError
+from planner.errors import AutomatonTooLargeError, PlanningError
 from planner.plan import MissionPlan, plan_mission, translate_task, verify_plan
 from planner.serialize import plan_from_dict, plan_to_dict
 from workers.admission import servable_problems
@@ -51,7 +51,12 @@ from workers.handover_repair import (
 )
 from workers.hooks import TrainingHooks
 from workers.jobs import SubtaskJob
-from workers.limits import AdmissionLimits, automaton_problems
+from workers.limits import (
+    AdmissionLimits,
+    automaton_problems,
+    translation_budget,
+    translation_problems,
+)
 from workers.mission import MissionError, MissionSpec, parse_mission
 from workers.training import ALGORITHMS, TrainResult, train_subtask
 from workers.training_spec import TrainingSpec
@@ -284,7 +289,8 @@ def stored_or_new_plan(
     """The mission's plan: read from ``folder/plan.json`` when made for the same mission
     (training options aside), else planned, verified and stored there. A new plan is refused
     (``MissionError`` on ``task``) when the formula's automaton, pruned for the world, has more
-    states than ``limits.max_automaton_states`` (default ``AdmissionLimits()``)."""
+    states than ``limits.max_automaton_states`` (default ``AdmissionLimits()``), or its
+    translation outgrows ``translation_budget``."""
     stored = folder / PLAN_FILE
     planning = mission.model_dump(mode="json", exclude={"training"})
     planning["planner"] = mission.planner_options().model_dump(mode="json")
@@ -296,8 +302,12 @@ def stored_or_new_plan(
             warnings.warn(f"planning anew: {stored} holds no usable plan ({error!r})", stacklevel=2)
     world = mission.build_world()
     radius = mission.robot.radius
-    nba, pruned = translate_task(mission.task, world, radius)
-    too_large = automaton_problems(nba.num_states, pruned.num_states, limits or AdmissionLimits())
+    limits = limits or AdmissionLimits()
+    try:
+        nba, pruned = translate_task(mission.task, world, radius, translation_budget(limits))
+    except AutomatonTooLargeError as error:
+        raise MissionError(translation_problems(limits)) from error
+    too_large = automaton_problems(nba.num_states, pruned.num_states, limits)
     if too_large:
         raise MissionError(too_large)
     plan = plan_mission(

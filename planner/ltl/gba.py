@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from planner.errors import AutomatonTooLargeError
 from planner.ltl.guard import Cube, covers
 from planner.ltl.vwaa import Vwaa
 
@@ -53,8 +54,11 @@ def add_cube(cubes: list[Cube], cube: Cube) -> None:
 class Degeneralizer:
     """Explores the degeneralized Büchi automaton of a VWAA from its initial states."""
 
-    def __init__(self, vwaa: Vwaa) -> None:
+    def __init__(self, vwaa: Vwaa, max_states: int | None = None) -> None:
         self.vwaa = vwaa
+        self.max_states = max_states
+        """Raise ``AutomatonTooLargeError`` once the automaton, or the successors of one state,
+        outgrow this many states (None: no budget)."""
         self.r = len(vwaa.finals)
         self.acc_index = {f: i + 1 for i, f in enumerate(vwaa.finals)}
 
@@ -85,6 +89,7 @@ class Degeneralizer:
                         if joined is not None:
                             add_cube(grown.setdefault(key, []), joined)
             partial = grown
+            self._check_budget(len(partial))
         out: dict[BaState, list[Cube]] = {}
         for (targets, missed), cubes in partial.items():
             for f in targets - e:
@@ -128,6 +133,7 @@ class Degeneralizer:
 
         def state_id(s: BaState) -> int:
             if s not in ids:
+                self._check_budget(len(names) + 1)
                 ids[s] = len(names)
                 names.append(self._name(s))
                 todo.append(s)
@@ -157,6 +163,10 @@ class Degeneralizer:
         if self.r == 0 and len(initial_sets) != 1:
             accepting.add(initial)
         return RawBuchi(initial, accepting, edges, names)
+
+    def _check_budget(self, states: int) -> None:
+        if self.max_states is not None and states > self.max_states:
+            raise AutomatonTooLargeError(self.max_states)
 
     def _name(self, s: BaState) -> str:
         e, level = s

@@ -10,6 +10,7 @@ cubes throughout; only the simulation, up to 8 atoms, reasons on letter sets.
 
 from __future__ import annotations
 
+from planner.errors import AutomatonTooLargeError
 from planner.ltl.automaton import Buchi, Edge
 from planner.ltl.formula import Formula, atoms, parse, to_nnf
 from planner.ltl.gba import Degeneralizer, RawBuchi
@@ -19,20 +20,26 @@ from planner.ltl.rewrite import simplify
 from planner.ltl.vwaa import build_vwaa, reordered_finals
 
 
-def translate(formula: Formula | str) -> Buchi:
+def translate(formula: Formula | str, max_states: int | None = None) -> Buchi:
     """The Büchi automaton accepting exactly the infinite words that satisfy ``formula``.
 
     ``formula`` may be a parsed formula or text in spin or letter syntax (a syntax error
     raises :class:`~planner.errors.FormulaError`). The automaton's atoms are all atoms of
-    the formula, sorted, even those the rewriting made irrelevant.
+    the formula, sorted, even those the rewriting made irrelevant. With ``max_states`` the
+    translation stops with :class:`~planner.errors.AutomatonTooLargeError` as soon as the automaton
+    before reduction (or the successors of one of its states) outgrows it: a formula such as
+    ``<>a1 && ... && <>a12`` needs 2^12 states and ran over two minutes without one.
     """
     f = parse(formula) if isinstance(formula, str) else formula
     nnf = simplify(to_nnf(f))
     vwaa = build_vwaa(nnf)
-    best = reduce_buchi(Degeneralizer(vwaa).build())
+    best = reduce_buchi(Degeneralizer(vwaa, max_states).build())
     other = reordered_finals(vwaa)
     if other is not None:
-        candidate = reduce_buchi(Degeneralizer(other).build())
+        try:
+            candidate = reduce_buchi(Degeneralizer(other, max_states).build())
+        except AutomatonTooLargeError:
+            candidate = best  # the other order outgrew the budget: keep the first
         if _size(candidate) < _size(best):
             best = candidate
     return to_buchi(best, tuple(sorted(atoms(f))))

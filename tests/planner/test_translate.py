@@ -135,3 +135,15 @@ def test_agrees_with_direct_semantics_on_random_formulas() -> None:
             prefix, cycle = random_lasso(rng)
             expected = holds_on_lasso(f, prefix, cycle)
             assert nba.accepts_lasso(prefix, cycle) == expected, (to_text(f), prefix, cycle)
+
+
+def test_a_state_budget_stops_an_exponential_translation_and_spares_the_rest() -> None:
+    from planner.errors import AutomatonTooLargeError
+
+    twelve_goals = " && ".join(f"<>g{i}" for i in range(12))  # 2^12 states
+    began = time.process_time()
+    with pytest.raises(AutomatonTooLargeError, match="grows past 100 states"):
+        translate(twelve_goals, max_states=100)
+    assert time.process_time() - began < 2.0
+    small = sequence(4)
+    assert translate(small, max_states=100) == translate(small)

@@ -174,9 +174,28 @@ def test_settings_hold_every_limit_with_the_same_default() -> None:
 def test_a_large_automaton_fails_the_plan_naming_the_limit(tmp_path: Path) -> None:
     document = with_("task", "<>(a && <>b) && <>(b && <>a) && <>(a && <>(b && <>a))")
     spec = admit(document, LIMITS)
+    # 26 states before reduction, 10 after: within the translation's budget, over the limit
     with pytest.raises(MissionError) as caught:
-        stored_or_new_plan(spec, tmp_path, AdmissionLimits(max_automaton_states=2))
+        stored_or_new_plan(spec, tmp_path, AdmissionLimits(max_automaton_states=9))
     ((field, message),) = caught.value.problems
     assert field == "task"
-    assert "over the limit 2 (LTLNAV_MAX_AUTOMATON_STATES)" in message
+    assert "over the limit 9 (LTLNAV_MAX_AUTOMATON_STATES)" in message
+    assert not (tmp_path / "plan.json").exists()
+
+
+def test_a_translation_that_outgrows_its_budget_stops_at_once(tmp_path: Path) -> None:
+    twenty_goals = " && ".join(f"<>g{i}" for i in range(20))  # 2^20 states
+    document = with_("task", twenty_goals)
+    document["world"]["regions"] = {f"g{i}": document["world"]["regions"]["a"] for i in range(20)}
+    spec = admit(document, LIMITS)
+    began = time.process_time()
+    with pytest.raises(MissionError) as caught:
+        stored_or_new_plan(spec, tmp_path, LIMITS)
+    assert time.process_time() - began < 5.0
+    ((field, message),) = caught.value.problems
+    assert field == "task"
+    assert message.startswith(
+        "its Büchi automaton grows past 2000 states while translating (4 times the limit 500, "
+        "LTLNAV_MAX_AUTOMATON_STATES)"
+    )
     assert not (tmp_path / "plan.json").exists()
