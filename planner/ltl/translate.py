@@ -28,7 +28,7 @@ def translate(formula: Formula | str, max_states: int | None = None) -> Buchi:
     the formula, sorted, even those the rewriting made irrelevant. With ``max_states`` the
     translation stops with :class:`~planner.errors.AutomatonTooLargeError` as soon as the automaton
     before reduction (or the successors of one of its states) outgrows it: a formula such as
-    ``<>a1 && ... && <>a12`` needs 2^12 states and ran over two minutes without one.
+    ``<>a1 && ... && <>a12`` needs 2^12 states and ran over two minutes unfinished.
     """
     f = parse(formula) if isinstance(formula, str) else formula
     nnf = simplify(to_nnf(f))
