@@ -70,8 +70,8 @@ class PlannerSpec(BaseModel):
         "robot radius: the lasso is planned with radius + margin, and with the radius alone "
         "when that finds no plan (a passage too narrow). A unicycle swings out at every corner "
         "of the guide; a margin keeps following it off the boxes (bench/LEARNING.md). Default: "
-        "the robot's own (0.3 for the point robot and the quadrotor, whose feed-forward cuts the "
-        "corners of a guide that grazes an obstacle; 0 for the others).",
+        "the robot's own (0.3 for the point robot, the quadrotor and the racecar, whose "
+        "feed-forward cuts the corners of a guide that grazes an obstacle; 0 for the unicycle).",
     )
     shortcut: bool = Field(
         True,

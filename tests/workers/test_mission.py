@@ -65,6 +65,8 @@ def test_the_planner_margin_defaults_to_the_robots_own() -> None:
     world["regions"] = {"g1": {"ball": {"center": [8, 8, 2], "radius": 1}}}
     flying = parse_mission(mission(robot=quad, world=world, task="<>g1"))
     assert flying.planner_options().margin == 0.3
+    racecar = {"model": "racecar", "start": [-8, -8, 0], "radius": 0.3}
+    assert parse_mission(mission(robot=racecar)).planner_options().margin == 0.3
     chosen = parse_mission(mission(robot=quad, world=world, task="<>g1", planner={"margin": 0}))
     assert chosen.planner_options().margin == 0.0  # a mission's own margin, even 0, is kept
 
