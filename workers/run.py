@@ -292,8 +292,9 @@ def stored_or_new_plan(
     states than ``limits.max_automaton_states`` (default ``AdmissionLimits()``), or its
     translation outgrows ``translation_budget``."""
     stored = folder / PLAN_FILE
+    options = mission.planner_options()
     planning = mission.model_dump(mode="json", exclude={"training"})
-    planning["planner"] = mission.planner_options().model_dump(mode="json")
+    planning["planner"] = options.model_dump(mode="json")
     saved = _read_plan_file(stored)
     if saved is not None and saved.get("mission") == planning:
         try:
@@ -310,9 +311,7 @@ def stored_or_new_plan(
     too_large = automaton_problems(nba.num_states, pruned.num_states, limits)
     if too_large:
         raise MissionError(too_large)
-    plan = plan_mission(
-        world, mission.task, mission.robot.position(), radius, mission.planner_options()
-    )
+    plan = plan_mission(world, mission.task, mission.robot.position(), radius, options)
     problems = verify_plan(plan, world, radius)
     if problems:
         raise PlanningError("the plan failed its own check: " + "; ".join(problems))
