@@ -47,6 +47,7 @@ from workers.manifest import (
     SubtaskEntry,
 )
 from workers.mission import MissionError, MissionSpec, parse_mission
+from workers.policy_act import deterministic_act
 from workers.training_spec import ACTIVATIONS
 
 MODEL_NAME = re.compile(r"models/subtask_[0-9]{1,4}\.zip")
@@ -193,6 +194,7 @@ class ConcatenatedPolicy:
         self.cycles = manifest.cycles
         self._probe = self.make_env(cycles=1)
         self.policies = [build_policy(e, models[e.model], self._probe) for e in manifest.subtasks]
+        self._acts = [deterministic_act(policy) for policy in self.policies]
         self.stage = 0
 
     @classmethod
@@ -235,9 +237,8 @@ class ConcatenatedPolicy:
     def act(self, obs: np.ndarray) -> np.ndarray:
         """The deterministic action of the current stage's sub-policy."""
         self.stage = round(float(obs[-1]))
-        policy = self.policies[self.subtask_of(self.stage)]
-        action, _ = policy.predict(np.asarray(obs[:-1], dtype=np.float32), deterministic=True)
-        return np.asarray(action, dtype=np.float32)
+        act = self._acts[self.subtask_of(self.stage)]
+        return np.asarray(act(np.asarray(obs[:-1], dtype=np.float32)), dtype=np.float32)
 
     def evaluate(
         self, episodes: int, seed: int = 0, cycles: int | None = None

@@ -58,6 +58,7 @@ from workers.limits import (
     translation_problems,
 )
 from workers.mission import MissionError, MissionSpec, parse_mission
+from workers.policy_act import deterministic_act
 from workers.training import ALGORITHMS, TrainResult, train_subtask
 from workers.training_spec import TrainingSpec
 
@@ -98,7 +99,7 @@ def rollout_share(
     torch.set_num_threads(training.torch_threads)
     cls = ALGORITHMS[training.algorithm]
     loaded = [cls.load(path, device="cpu") for path in models]
-    policies = [(lambda obs, m=m: m.predict(obs, deterministic=True)[0]) for m in loaded]
+    policies = [deterministic_act(m.policy) for m in loaded]
     options = training.eval_env_options(mission.robot.model)
     envs = [MissionEnv(mission, run.plan, options, training.cycles) for _ in range(share.count)]
     try:

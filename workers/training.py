@@ -22,7 +22,6 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-import numpy as np
 import torch
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.logger import configure
@@ -48,6 +47,7 @@ from workers.evaluation import SubtaskEvaluation, evaluate_subtask, seed_lanes
 from workers.hooks import CurvePoint, TrainingHooks
 from workers.jobs import SubtaskJob
 from workers.mission import MissionSpec
+from workers.policy_act import deterministic_act
 from workers.residual import StartCheck, recorded_start, start_check
 from workers.training_spec import TrainingSpec
 
@@ -237,10 +237,8 @@ class _SubtaskTraining:
         )
         hooks.resumed(self.resumed)
         self.confirmations = [c for c in _stored_confirmations(out) if c[0] <= self.resumed]
-
-    def act(self, observations: np.ndarray) -> np.ndarray:
+        self.act = deterministic_act(self.model.policy)
         """The policy's deterministic actions for a batch of observations."""
-        return self.model.predict(observations, deterministic=True)[0]
 
     def final_evaluation(self) -> SubtaskEvaluation:
         """The reported evaluation (``final_eval_episodes`` from the real starts)."""
@@ -338,7 +336,7 @@ class _SubtaskTraining:
         )
         if stopped == "budget":
             model, result.policy_steps = keep_best_policy(model, evaluation, training, self.env)
-            self.model = model
+            self.model, self.act = model, deterministic_act(model.policy)
         if stopped != "cancelled" and not hooks.may_write():
             result.stopped = stopped = "cancelled"
         if stopped != "cancelled":
