@@ -329,6 +329,26 @@ def test_quadrotor_hovers_and_tracks_velocity(robots: list[Robot]) -> None:
     assert abs(yaw - 0.5) < 0.01 and abs(roll) < 0.1 and abs(pitch) < 0.1
 
 
+def test_racecar_groups_obstacles_and_touches_every_one(robots: list[Robot]) -> None:
+    """Forty balls make three bodies of at most 16 shapes, and the car's geometry touches the
+    last ball (where PyBullet would have dropped shapes past 16) while its 5 cm disc does not."""
+    balls = [Ball(np.array([1.0 + 0.5 * (k % 20), 1.0 + 6.0 * (k // 20)]), 0.1) for k in range(40)]
+    world = World(np.array([[0.0, 12.0], [0.0, 8.0]]), balls, {})
+    robot = build(robots, "racecar", world, 0.05)
+    assert isinstance(robot, Racecar)
+    pb = pytest.importorskip("pybullet")
+    shapes = [
+        len(pb.getCollisionShapeData(body, -1, physicsClientId=robot.client))
+        for body in robot.obstacle_bodies
+    ]
+    assert shapes == [16, 16, 8]
+    last = balls[-1].center
+    robot.reset(last - np.array([0.3, 0.0]), np.random.default_rng(0), heading=0.0)
+    assert not robot.collided()
+    robot.step(np.zeros(2))
+    assert robot.collided()
+
+
 def test_racecar_builds_polygons_and_closes(robots: list[Robot]) -> None:
     world = world_2d()
     poly = world.obstacles[3]
@@ -342,9 +362,9 @@ def test_racecar_builds_polygons_and_closes(robots: list[Robot]) -> None:
     verts, faces = prism([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]], 0.0, 1.0)
     assert len(verts) == 6 and len(faces) == 3 * (2 + 2 * 3)
     robot = build(robots, "racecar", world, 0.1)
-    # Wall of boxes and ball cylinder, plus one prism per triangle of the non-convex polygon.
+    # The boxes and the ball's cylinder share a body; one prism per triangle of the polygon.
     assert isinstance(robot, Racecar)
-    assert len(robot.obstacle_bodies) == 3 + len(tris)
+    assert len(robot.obstacle_bodies) == 1 + len(tris)
     robot.close()
     robot.close()
     with pytest.raises(RuntimeError, match="reset"):
