@@ -41,8 +41,9 @@ class MissionPlan:
     ``nba`` is the automaton of the formula, ``pruned`` the one TL-RRT* planned in (the lasso's
     and sub-tasks' automaton states refer to it). ``r_ball`` is the radius of the sub-tasks'
     guide balls and ``eta`` the steering step used. ``seconds`` covers the whole pipeline,
-    ``translation_seconds`` parsing, translation and pruning. ``clearance`` is the distance
-    the lasso keeps from obstacles (the robot radius, plus the planner margin when it fit).
+    ``translation_seconds`` parsing, translation and pruning (pruning alone when the automaton
+    was given). ``clearance`` is the distance the lasso keeps from obstacles (the robot radius,
+    plus the planner margin when it fit).
     """
 
     formula: str
@@ -98,6 +99,12 @@ def translate_task(
     formula = parse(task)
     check_mission_formula(formula, task)
     nba = translate(formula, max_states)
+    return nba, prune_for_world(nba, world, clearance)
+
+
+def prune_for_world(nba: Buchi, world: World, clearance: float) -> Buchi:
+    """``nba`` without the transitions whose labels no point of ``world`` at ``clearance`` from
+    its obstacles realises (PlanningError when no accepting run survives)."""
 
     def realisable(cube: Cube) -> bool:
         return world.realisable(cube.pos, cube.neg, clearance)
@@ -105,7 +112,7 @@ def translate_task(
     pruned = prune(nba, realisable)
     if not has_accepting_run(pruned):
         raise unsatisfiable(has_accepting_run(nba))
-    return nba, pruned
+    return pruned
 
 
 def plan_mission(
@@ -114,10 +121,13 @@ def plan_mission(
     start: np.ndarray,
     clearance: float,
     options: PlannerSpec | None = None,
+    nba: Buchi | None = None,
 ) -> MissionPlan:
     """Plan ``task`` (LTL text) in ``world`` for a robot of radius ``clearance`` at ``start``,
     keeping ``options.margin`` more where a plan exists with it (None: none; a mission's
-    ``MissionSpec.planner_options`` gives its robot's).
+    ``MissionSpec.planner_options`` gives its robot's). ``nba``: the automaton of ``task``
+    when the caller has translated it already (``translate_task``), so that it is translated
+    once, not once per clearance tried.
 
     Raises FormulaError for a bad formula and PlanningError when no plan exists or none was
     found within the budget (the message says which).
@@ -134,17 +144,26 @@ def plan_mission(
                 start,
                 clearance + opts.margin,
                 opts.model_copy(update={"max_iterations": cap}),
+                nba,
             )
         except PlanningError:
             pass  # too narrow somewhere with the margin: the radius alone decides
-    return _plan(world, task, start, clearance, opts)
+    return _plan(world, task, start, clearance, opts, nba)
 
 
 def _plan(
-    world: World, task: str, start: np.ndarray, clearance: float, opts: PlannerSpec
+    world: World,
+    task: str,
+    start: np.ndarray,
+    clearance: float,
+    opts: PlannerSpec,
+    nba: Buchi | None,
 ) -> MissionPlan:
     t0 = time.process_time()
-    nba, pruned = translate_task(task, world, clearance)
+    if nba is None:
+        nba, pruned = translate_task(task, world, clearance)
+    else:
+        pruned = prune_for_world(nba, world, clearance)
     pruned = restrict_to_reachable(pruned, world, np.asarray(start, dtype=float), clearance)
     t_translate = time.process_time() - t0
     rng = np.random.default_rng(opts.seed)

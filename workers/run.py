@@ -312,7 +312,7 @@ def stored_or_new_plan(
     too_large = automaton_problems(nba.num_states, pruned.num_states, limits)
     if too_large:
         raise MissionError(too_large)
-    plan = plan_mission(world, mission.task, mission.robot.position(), radius, options)
+    plan = plan_mission(world, mission.task, mission.robot.position(), radius, options, nba)
     problems = verify_plan(plan, world, radius)
     if problems:
         raise PlanningError("the plan failed its own check: " + "; ".join(problems))

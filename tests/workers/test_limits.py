@@ -12,7 +12,10 @@ from typing import Any
 import numpy as np
 import pytest
 
+import planner.plan
+from planner.plan import plan_mission
 from planner.search.planner_spec import PlannerSpec
+from planner.serialize import plan_to_dict
 from service.settings import Settings
 from tests.workers.missions import TINY
 from workers.admission import admit, document_problems, load_admitted, mission_problems
@@ -199,3 +202,33 @@ def test_a_translation_that_outgrows_its_budget_stops_at_once(tmp_path: Path) ->
         "LTLNAV_MAX_AUTOMATON_STATES)"
     )
     assert not (tmp_path / "plan.json").exists()
+
+
+def test_a_new_plan_translates_the_formula_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Checking the limits and both clearances (the margin does not fit this world) share one
+    translation, and the plan is the one ``plan_mission`` makes translating by itself."""
+    document = with_("planner.margin", 2.0)
+    spec = admit(document, LIMITS)
+    calls: list[str] = []
+    translate = planner.plan.translate
+
+    def counted(formula: Any, max_states: int | None = None) -> Any:
+        calls.append(str(formula))
+        return translate(formula, max_states)
+
+    monkeypatch.setattr(planner.plan, "translate", counted)
+    plan = stored_or_new_plan(spec, tmp_path, LIMITS)
+    assert len(calls) == 1
+    assert plan.clearance == spec.robot.radius
+    options = spec.planner_options()
+    alone = plan_mission(
+        spec.build_world(), spec.task, spec.robot.position(), spec.robot.radius, options
+    )
+    assert len(calls) == 3
+    ignore = ("seconds", "translation_seconds")
+    mine, theirs = plan_to_dict(plan), plan_to_dict(alone)
+    assert {k: v for k, v in mine.items() if k not in ignore} == {
+        k: v for k, v in theirs.items() if k not in ignore
+    }
