@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -139,6 +139,14 @@ class Track:
     """``(m,)`` path length from each point to the end (non-increasing)."""
     ball_togo: np.ndarray
     """``(n,)`` path length from each of the guide's balls to the end."""
+    neg_togo: np.ndarray = field(init=False, repr=False, compare=False)
+    """``-togo`` (non-decreasing, for ``searchsorted``)."""
+    _stretches: dict[int, Stretch] = field(
+        default_factory=dict, init=False, repr=False, compare=False
+    )
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "neg_togo", -np.asarray(self.togo, dtype=float))
 
     @classmethod
     def of_guide(cls, guide: Guide) -> Track:
@@ -154,6 +162,38 @@ class Track:
         total = float(along[-1])
         return cls(pts, total - along, total - np.linspace(0.0, total, balls))
 
+    def stretch(self, index: int) -> Stretch:
+        """The segments of the track from ball ``index - 1`` to ball ``index + 4`` (``index``
+        -1: none reached), worked out once per index: the pursuit law asks every step."""
+        found = self._stretches.get(index)
+        if found is None:
+            found = self._stretches[index] = Stretch.of(self, index)
+        return found
+
+
+@dataclass(frozen=True)
+class Stretch:
+    """Segments ``lo`` to ``lo + len(a) - 1`` of a track: their starts ``a``, vectors ``seg``,
+    squared lengths (at least 1e-18) and lengths."""
+
+    lo: int
+    a: np.ndarray
+    seg: np.ndarray
+    length_sq: np.ndarray
+    length: np.ndarray
+
+    @classmethod
+    def of(cls, track: Track, index: int) -> Stretch:
+        points, neg_togo = track.points, track.neg_togo
+        m, n = len(points), len(track.ball_togo)
+        far = track.ball_togo[max(index - 1, 0)]
+        near = track.ball_togo[min(max(index, 0) + 4, n - 1)]
+        lo = min(max(int(np.searchsorted(neg_togo, -far, side="right")) - 1, 0), m - 2)
+        hi = max(min(int(np.searchsorted(neg_togo, -near, side="left")), m - 1), lo + 1)
+        a, seg = points[lo:hi], points[lo + 1 : hi + 1] - points[lo:hi]
+        length_sq = np.maximum(np.einsum("ij,ij->i", seg, seg), 1e-18)
+        return cls(lo, a, seg, length_sq, np.sqrt(length_sq))
+
 
 def pursuit_target(
     track: Track, index: int, x: Sequence[float] | np.ndarray, ahead: float
@@ -161,22 +201,16 @@ def pursuit_target(
     """The point ``ahead`` metres along ``track`` past the projection of ``x`` on its stretch
     from ball ``index - 1`` to ball ``index + 4`` (``index`` -1: none reached)."""
     points, togo = track.points, track.togo
-    m, n = len(points), len(track.ball_togo)
+    m = len(points)
     if m == 1:
         return np.asarray(points[0], dtype=float)
-    far = track.ball_togo[max(index - 1, 0)]
-    near = track.ball_togo[min(max(index, 0) + 4, n - 1)]
-    lo = min(max(int(np.searchsorted(-togo, -far, side="right")) - 1, 0), m - 2)
-    hi = max(min(int(np.searchsorted(-togo, -near, side="left")), m - 1), lo + 1)
-    a, b = points[lo:hi], points[lo + 1 : hi + 1]
-    seg = b - a
-    length_sq = np.maximum(np.einsum("ij,ij->i", seg, seg), 1e-18)
+    st = track.stretch(index)
     point = np.asarray(x, dtype=float)
-    t = np.clip(np.einsum("ij,ij->i", point - a, seg) / length_sq, 0.0, 1.0)
-    gap = a + t[:, None] * seg - point
+    t = np.clip(np.einsum("ij,ij->i", point - st.a, st.seg) / st.length_sq, 0.0, 1.0)
+    gap = st.a + t[:, None] * st.seg - point
     j = int(np.argmin(np.einsum("ij,ij->i", gap, gap)))
-    left = float(togo[lo + j]) - t[j] * math.sqrt(length_sq[j]) - ahead
-    k = int(np.searchsorted(-togo, -left, side="right"))
+    left = float(togo[st.lo + j]) - t[j] * float(st.length[j]) - ahead
+    k = int(np.searchsorted(track.neg_togo, -left, side="right"))
     if k >= m:
         return np.asarray(points[-1], dtype=float)
     k = max(k, 1)

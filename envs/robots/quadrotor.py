@@ -156,14 +156,18 @@ class Quadrotor(Robot):
             r22 = 1.0 - 2.0 * (qx * qx + qy * qy)
             # Velocity loop (PI, anti-windup clamp) -> desired acceleration -> thrust vector.
             ex, ey, ez = cx - vx, cy - vy, cz - vz
-            ix = min(i_max, max(-i_max, ix + ex * h))
-            iy = min(i_max, max(-i_max, iy + ey * h))
-            iz = min(i_max, max(-i_max, iz + ez * h))
+            # Clamps written out: min/max calls were a fifth of the step's time.
+            ix += ex * h
+            ix = i_max if ix > i_max else (-i_max if ix < -i_max else ix)
+            iy += ey * h
+            iy = i_max if iy > i_max else (-i_max if iy < -i_max else iy)
+            iz += ez * h
+            iz = i_max if iz > i_max else (-i_max if iz < -i_max else iz)
             ax, ay, az = kv * ex + ki * ix, kv * ey + ki * iy, kv * ez + ki * iz
             a_xy = math.hypot(ax, ay)
             if a_xy > a_xy_max:
                 ax, ay = ax * a_xy_max / a_xy, ay * a_xy_max / a_xy
-            az = min(a_z_max, max(-a_z_max, az))
+            az = a_z_max if az > a_z_max else (-a_z_max if az < -a_z_max else az)
             fx, fy, fz = m * ax, m * ay, m * (az + g)
             # Desired attitude: body z along the thrust vector, heading held at the reset yaw.
             fn = math.sqrt(fx * fx + fy * fy + fz * fz)
@@ -172,7 +176,8 @@ class Quadrotor(Robot):
             n2 = math.sqrt(b2x * b2x + b2y * b2y + b2z * b2z)
             b2x, b2y, b2z = b2x / n2, b2y / n2, b2z / n2
             b1x, b1y, b1z = b2y * b3z - b2z * b3y, b2z * b3x - b2x * b3z, b2x * b3y - b2y * b3x
-            thrust = max(0.0, fx * r02 + fy * r12 + fz * r22)
+            thrust = fx * r02 + fy * r12 + fz * r22
+            thrust = thrust if thrust > 0.0 else 0.0
             # Attitude error e = vee(Rd^T R - R^T Rd) / 2 -> desired body rates.
             m01 = b1x * r01 + b1y * r11 + b1z * r21
             m02 = b1x * r02 + b1y * r12 + b1z * r22
@@ -191,11 +196,15 @@ class Quadrotor(Robot):
             ty = iyy * kr * (dwy - wy) + gy
             tz = izz * kr * (dwz - wz) + gz
             # X mixer: motors at (+,+), (-,+), (-,-), (+,-) arm/sqrt2; diagonal pairs share spin.
-            t4 = 0.25 * thrust
-            f0 = min(f_max, max(0.0, t4 + tx / a4 - ty / a4 - tz / k4))
-            f1 = min(f_max, max(0.0, t4 + tx / a4 + ty / a4 + tz / k4))
-            f2 = min(f_max, max(0.0, t4 - tx / a4 + ty / a4 - tz / k4))
-            f3 = min(f_max, max(0.0, t4 - tx / a4 - ty / a4 + tz / k4))
+            t4, xa, ya, zk = 0.25 * thrust, tx / a4, ty / a4, tz / k4
+            f0 = t4 + xa - ya - zk
+            f0 = f_max if f0 > f_max else (f0 if f0 > 0.0 else 0.0)
+            f1 = t4 + xa + ya + zk
+            f1 = f_max if f1 > f_max else (f1 if f1 > 0.0 else 0.0)
+            f2 = t4 - xa + ya - zk
+            f2 = f_max if f2 > f_max else (f2 if f2 > 0.0 else 0.0)
+            f3 = t4 - xa - ya + zk
+            f3 = f_max if f3 > f_max else (f3 if f3 > 0.0 else 0.0)
             total = f0 + f1 + f2 + f3
             ux = 0.25 * a4 * (f0 + f1 - f2 - f3)
             uy = 0.25 * a4 * (-f0 + f1 + f2 - f3)
