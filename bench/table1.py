@@ -32,7 +32,6 @@ import os
 import statistics
 import sys
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -98,21 +97,11 @@ def train(task: Task, method: str, protocol: str, seed: int, out: Path, jobs: in
     record.write_text(json.dumps({"seconds": time.monotonic() - started, "jobs": jobs}))
 
 
-def zero_action(dim: int) -> Callable[[np.ndarray], np.ndarray]:
-    """The zero action for a batch of observations (one row per lane)."""
-
-    def act(observations: np.ndarray) -> np.ndarray:
-        return np.zeros((len(observations), dim), dtype=np.float32)
-
-    return act
-
-
 def zero_control(task: Task, protocol: str, out: Path) -> dict[str, Any]:
-    """The zero action evaluated like a policy on the row's plan, stored in ``zero.json``."""
-    from envs.mission_env import MissionEnv
-    from workers.evaluation import evaluate_subtask, rollout_mission
-    from workers.run import EVALUATION_SEED, stored_or_new_plan
-    from workers.training import REPORT_SEED, subtask_env
+    """The zero action evaluated like a policy on the row's plan (``workers.control``), stored
+    in ``zero.json``."""
+    from workers.control import zero_control as control
+    from workers.run import stored_or_new_plan
 
     record = out / task.name / f"zero+protocol={protocol}" / "zero.json"
     if record.is_file():
@@ -120,29 +109,11 @@ def zero_control(task: Task, protocol: str, out: Path) -> dict[str, Any]:
         return figures
     row = run_row(task, "rrt", protocol, 0)
     mission = load_mission(task.name, row)
-    training = mission.training
-    plan = stored_or_new_plan(mission, out / row.folder)
-    rates = []
-    lanes = training.eval_lanes
-    for k in range(len(plan.subtasks)):
-        envs = [subtask_env(mission, plan, training, k, evaluation=True) for _ in range(lanes)]
-        try:
-            act = zero_action(envs[0].robot.action_dim)
-            episodes = training.final_eval_episodes
-            rates.append(evaluate_subtask(act, envs, episodes, seed=REPORT_SEED).success_rate)
-        finally:
-            for env in envs:
-                env.close()
-    options = training.eval_env_options(mission.robot.model)
-    wholes = [MissionEnv(mission, plan, options, training.cycles) for _ in range(lanes)]
-    try:
-        act = zero_action(wholes[0].robot.action_dim)
-        seed = training.seed + EVALUATION_SEED
-        rollouts = rollout_mission(act, wholes, training.mission_episodes, seed=seed)
-    finally:
-        for whole in wholes:
-            whole.close()
-    figures = {"subtasks": rates, "mission": rollouts.success_rate}
+    evaluation = control(mission, stored_or_new_plan(mission, out / row.folder))
+    figures = {
+        "subtasks": [e.success_rate for e in evaluation.subtasks],
+        "mission": evaluation.mission.success_rate,
+    }
     record.parent.mkdir(parents=True, exist_ok=True)
     record.write_text(json.dumps(figures))
     return figures

@@ -1,9 +1,10 @@
 """What a mission's env defaults achieve with no learning: the zero action on every sub-task.
 
 The control experiment for action-shaping defaults (``guide_feedforward``, ``min_forward``): a
-policy that always outputs zeros, evaluated like a trained one (``final_eval_episodes`` trials
-per sub-task from its real start, then ``mission_episodes`` whole-mission rollouts). Whatever
-it reaches is owed to the defaults, not to training.
+policy that always outputs zeros, evaluated like a trained one (``workers.control``:
+``final_eval_episodes`` trials per sub-task from its real start, then ``mission_episodes``
+whole-mission rollouts, at the reported figures' seeds). Whatever it reaches is owed to the
+defaults, not to training.
 
 Run ``.venv/bin/python bench/zero_policy.py examples/quad-phi1-inf.yaml`` (a few minutes); the
 plan is made (or reused) in ``var/bench/zero_policy/<mission>/``, so variants given with
@@ -22,13 +23,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-import numpy as np  # noqa: E402
-
-from envs.mission_env import MissionEnv  # noqa: E402
-from workers.evaluation import evaluate_subtask, rollout_mission  # noqa: E402
+from workers.control import zero_control  # noqa: E402
 from workers.mission import load_mission, parse_mission  # noqa: E402
-from workers.run import EVALUATION_SEED, stored_or_new_plan  # noqa: E402
-from workers.training import subtask_env  # noqa: E402
+from workers.run import stored_or_new_plan  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -46,29 +43,19 @@ def main(argv: list[str] | None = None) -> None:
     training = mission.training
     plan = stored_or_new_plan(mission, args.out / mission.name)
     robot = mission.robot.model
-    options = training.eval_env_options(robot)
-    print(f"{mission.name} ({robot}), zero action; eval options: {options}\n")
+    print(
+        f"{mission.name} ({robot}), zero action; eval options: {training.eval_env_options(robot)}\n"
+    )
+    evaluation = zero_control(mission, plan)
     print("| sub-task | success | collisions | timeouts | mean steps to goal |")
     print("|---|---|---|---|---|")
-    for k in range(len(plan.subtasks)):
-        env = subtask_env(mission, plan, training, k, evaluation=True)
-        zeros = np.zeros(env.robot.action_dim, dtype=np.float32)
-        try:
-            ev = evaluate_subtask(lambda _o: zeros, env, training.final_eval_episodes, seed=k)  # noqa: B023
-        finally:
-            env.close()
+    for k, ev in enumerate(evaluation.subtasks):
         steps = "-" if ev.mean_steps_to_goal is None else f"{ev.mean_steps_to_goal:.0f}"
         print(
             f"| {k} | {ev.success_rate:.1%} | {ev.collision_rate:.1%} | {ev.timeout_rate:.1%} "
             f"| {steps} |"
         )
-    whole = MissionEnv(mission, plan, options, training.cycles)
-    zeros = np.zeros(whole.robot.action_dim, dtype=np.float32)
-    try:
-        seed = training.seed + EVALUATION_SEED
-        rollouts = rollout_mission(lambda _o: zeros, whole, training.mission_episodes, seed=seed)
-    finally:
-        whole.close()
+    rollouts = evaluation.mission
     print(
         f"\nmission: {rollouts.success_rate:.1%} of {rollouts.episodes} rollouts; failures by "
         f"sub-task: {rollouts.failures}"

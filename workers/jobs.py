@@ -18,6 +18,11 @@ from planner.geometry.pose import Pose
 from workers.training_spec import TrainingSpec
 
 
+def job_seed(training: TrainingSpec, subtask: int) -> int:
+    """The seed of sub-task ``subtask``'s own training job (round 0)."""
+    return training.seed + subtask
+
+
 @dataclass(frozen=True)
 class SubtaskJob:
     """Train sub-task ``subtask`` with ``training`` and ``seed``.

@@ -50,7 +50,7 @@ from workers.handover_repair import (
     repair_jobs,
 )
 from workers.hooks import TrainingHooks
-from workers.jobs import SubtaskJob
+from workers.jobs import SubtaskJob, job_seed
 from workers.limits import (
     AdmissionLimits,
     automaton_problems,
@@ -162,10 +162,10 @@ class MissionRun:
         return lasso_stages(self.plan.subtasks, self.training.cycles if cycles is None else cycles)
 
     def jobs(self) -> list[SubtaskJob]:
-        """One training job per sub-task, seeded ``training.seed + k``."""
+        """One training job per sub-task, seeded ``job_seed``."""
         training = self.training
         return [
-            SubtaskJob(subtask=k, training=training, seed=training.seed + k)
+            SubtaskJob(subtask=k, training=training, seed=job_seed(training, k))
             for k in range(len(self.plan.subtasks))
         ]
 
