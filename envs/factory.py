@@ -25,8 +25,14 @@ from envs.handover import checked_starts, opening_pose, real_starts
 from envs.nav_env import Leg, NavEnv
 from envs.options import EnvOptions, options_with
 from envs.rewards import reward_mode
-from envs.robots import Robot, RobotConfigError, make_robot, robot_class, robot_params
-from envs.robots.racecar import WHEEL_RADIUS, RacecarParams
+from envs.robots import (
+    Robot,
+    RobotConfigError,
+    make_robot,
+    nominal_speed,
+    robot_class,
+    robot_params,
+)
 from envs.spec import RobotSpec
 from planner.geometry.drivable import thin
 from planner.geometry.pose import Pose, heading_along
@@ -300,15 +306,6 @@ def _turning_radius(options: EnvOptions, spec: RobotSpec) -> float:
             f"only for robots with a minimum turning radius (racecar), not a {spec.model}",
         )
     return options.drivable_guide * tightest
-
-
-def nominal_speed(robot: Robot) -> float:
-    """The robot's top speed in m/s (``max_speed``; racecar: wheel speed times radius)."""
-    params = robot.params
-    if isinstance(params, RacecarParams):
-        return float(params.max_wheel_speed * WHEEL_RADIUS)
-    speed = getattr(params, "max_speed", None)
-    return float(speed) if isinstance(speed, int | float) and speed > 0 else 1.0
 
 
 def default_max_steps(legs: Sequence[Leg], robot: Robot, time_factor: float) -> int:

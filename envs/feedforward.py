@@ -1,5 +1,5 @@
-"""The guide feed-forward of ``EnvOptions.guide_feedforward``: a command toward the guide's
-carrot that the policy's action corrects; :class:`ActionShaping` applies it, and
+"""The guide feed-forward of ``EnvOptions.guide_feedforward``: a command along the guide that
+the policy's action corrects; :class:`ActionShaping` applies it, and
 ``EnvOptions.min_forward``, to every action of the env.
 
 The quadrotor, commanded by a world-frame velocity, gets ``gain`` times the unit vector toward
@@ -9,12 +9,11 @@ the guide, added to the policy's action. The point robot, commanded by an accele
 the point one braking length ahead on the guide (the velocity error over ``max_speed``: full
 acceleration from rest, none at top speed toward it, braking when it moves away). Robots
 driven by (forward, turn) actions (unicycle, racecar) get ``gain`` times a turn command toward
-the carrot, the centre of the r-ball ``AHEAD`` balls past the robot's progress index on the
-current leg (the leg's last ball at most), on the turn component (proportional to the heading
-error, full at 90 degrees or more). Sums are clipped to ``[-1, 1]``. Following the guide is then
-what a zero action does; the policy learns the correction around boxes and into the goal
-(residual policy learning, Silver et al. 2018; Johannink et al. 2019), instead of first having
-to discover motion at all.
+the point of the guide ``HEADING_LOOKAHEAD`` seconds of their top speed ahead, on the turn
+component (proportional to the heading error, full at 90 degrees or more). Sums are clipped to
+``[-1, 1]``. Following the guide is then what a zero action does; the policy learns the
+correction around boxes and into the goal (residual policy learning, Silver et al. 2018;
+Johannink et al. 2019), instead of first having to discover motion at all.
 
 For robots with a minimum turning radius (racecar) ``EnvOptions.feedforward_law = "pursuit"``
 replaces that turn by pure pursuit (Coulter 1992): the target is the point ``PURSUIT_LOOKAHEAD``
@@ -36,6 +35,7 @@ import numpy as np
 
 from envs.errors import EnvConfigError
 from envs.observation import HEADING_FEATURES
+from envs.robots import nominal_speed
 from envs.robots.base import Robot, wrap_angle
 from envs.robots.point import PointParams
 from envs.robots.quadrotor import QuadrotorParams
@@ -45,13 +45,18 @@ from planner.guidance import Guide
 if TYPE_CHECKING:
     from envs.options import EnvOptions
 
-AHEAD = 2
-"""Balls past the progress index that the carrot sits (the ``follower`` of the tests)."""
-
 PURSUIT_LOOKAHEAD = 1.3
 """Pure-pursuit lookahead in minimum turning radii (0.8 m for the racecar, whose drivable
 guides turn on 1.45 radii: with it the zero action drives every sub-task of
 ``examples/racecar-phi2-fin.yaml``, ``bench/zero_policy.py``)."""
+
+HEADING_LOOKAHEAD = 0.2
+"""Seconds of the robot's top speed that the heading law's target runs ahead on the guide (the
+unicycle's feed-forward). Measured with the zero action on the generated 2D worlds of
+``bench/zero_grid.py`` (tuning seeds 0-19, 20 starts a sub-task, planner margin 0.3 m): 0.2 s
+holds 47 of 52 sub-tasks (15 of 20 worlds; 50 of 54 and 19 of 20 on seeds 20-39), 0.1 s 45,
+0.3 s 44, 0.5 s 42, 1 s 35; the carrot two balls ahead, which it replaced, 16 (3 worlds): its
+chord cuts corners into the obstacles."""
 
 QUADROTOR_LOOKAHEAD = 0.5
 """Seconds of the quadrotor's top speed that its feed-forward target runs ahead on the guide.
@@ -63,14 +68,6 @@ chord cuts the towers' corners where the r-balls are wide)."""
 
 WORLD_FRAME_ROBOTS = frozenset({"point", "quadrotor"})
 """Robots whose action is a world-frame command, one component per workspace axis."""
-
-
-def carrot_direction(
-    centres: np.ndarray, index: int, x: Sequence[float] | np.ndarray
-) -> np.ndarray:
-    """Unit vector from ``x`` to the carrot of progress index ``index`` (-1: none reached);
-    zeros at the carrot."""
-    return unit_toward(centres[min(max(index, -1) + AHEAD, len(centres) - 1)], x)
 
 
 def pursuit_direction(
@@ -116,6 +113,14 @@ def flight_direction(
     params = robot.params
     assert isinstance(params, QuadrotorParams)
     return pursuit_direction(track, index, x, QUADROTOR_LOOKAHEAD * params.max_speed)
+
+
+def heading_direction(
+    robot: Robot, track: Track, index: int, x: Sequence[float] | np.ndarray
+) -> np.ndarray:
+    """Direction the heading law turns a (forward, turn) robot toward: the point of ``track``
+    ``HEADING_LOOKAHEAD`` seconds of its top speed ahead."""
+    return pursuit_direction(track, index, x, HEADING_LOOKAHEAD * nominal_speed(robot))
 
 
 def steering_toward(heading: float, direction: np.ndarray) -> float:
@@ -266,10 +271,10 @@ class ActionShaping:
         self.active = self.forward is not None or self.gain is not None
         """Whether actions change at all."""
 
-    def apply(self, action: np.ndarray, guide: Guide, track: Track, index: int) -> np.ndarray:
+    def apply(self, action: np.ndarray, track: Track, index: int) -> np.ndarray:
         """``action``, validated (a bad action must not be mapped into the box and slip
-        through), with the feed-forward along ``guide`` (pursuit: along its ``track``) from
-        progress index ``index`` added and the forward command mapped."""
+        through), with the feed-forward along the leg's ``track`` from progress index ``index``
+        added and the forward command mapped."""
         robot = self.robot
         a = np.array(action, dtype=float)
         if a.shape != (robot.action_dim,) or not np.all(np.abs(a) <= 1.0):
@@ -289,7 +294,7 @@ class ActionShaping:
                 elif robot.name == "quadrotor":
                     toward = flight_direction(robot, track, index, x)
                 else:
-                    toward = carrot_direction(guide.centers, index, x)
+                    toward = heading_direction(robot, track, index, x)
                 if robot.name in WORLD_FRAME_ROBOTS:
                     return with_feedforward(a, self.gain, toward)
                 turn = steering_toward(robot.heading(), toward)

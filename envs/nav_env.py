@@ -264,7 +264,7 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         robot = self.robot
         if self._shaping.active:
             leg = self._leg
-            action = self._shaping.apply(action, leg.guide, leg.track, self._index - leg.offset)
+            action = self._shaping.apply(action, leg.track, self._index - leg.offset)
         robot.step(action)
         self._t += 1
         raw = robot.observation()

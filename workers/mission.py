@@ -108,14 +108,19 @@ class _WorldCache:
     __hash__ = None  # type: ignore[assignment]
 
 
-ROBOT_PLANNER_MARGIN: dict[str, float] = {"point": 0.3, "quadrotor": 0.3, "racecar": 0.3}
-"""``planner.margin`` of a mission that sets none, by robot model (the unicycle, which has no
-feed-forward to measure it with: 0): the clearance beyond the radius that the robot's
-feed-forward holds. Measured with the zero action on the generated worlds of
-``bench/generality.py`` (tuning seeds 0-19, 20 starts a sub-task), sub-tasks held with the
-radius alone -> with 0.3 m: quadrotor (3D cities) 38 -> 52 of 52, point robot (2D) 23 -> 48 of
-52, racecar 9 -> 38 of 52. The rest are mostly worlds of rooms whose narrowest door does not
-fit the margin, where the plan keeps the radius alone."""
+ROBOT_PLANNER_MARGIN: dict[str, float] = {
+    "point": 0.3,
+    "quadrotor": 0.3,
+    "racecar": 0.3,
+    "unicycle": 0.3,
+}
+"""``planner.margin`` of a mission that sets none, by robot model: the clearance beyond the
+radius that the robot's feed-forward holds. Measured with the zero action on the generated
+worlds of ``bench/generality.py`` (``bench/zero_grid.py``: tuning seeds 0-19, 20 starts a
+sub-task), sub-tasks held with the radius alone -> with 0.3 m: quadrotor (3D cities) 38 -> 52
+of 52, point robot (2D) 23 -> 48 of 52, racecar 9 -> 38 of 52, unicycle 26 -> 44 of 52 (with
+a feed-forward lookahead of 0.3 s; 47 at the adopted 0.2 s). The rest are mostly worlds of
+rooms whose narrowest door does not fit the margin, where the plan keeps the radius alone."""
 
 
 class MissionSpec(BaseModel):

@@ -17,7 +17,7 @@ from typing import Any
 from envs.robots.base import PointCollider, Robot, RobotConfigError, RobotParams
 from envs.robots.point import PointParams, PointRobot
 from envs.robots.quadrotor import Quadrotor, QuadrotorParams
-from envs.robots.racecar import Racecar, RacecarParams
+from envs.robots.racecar import WHEEL_RADIUS, Racecar, RacecarParams
 from envs.robots.unicycle import Unicycle, UnicycleParams
 from planner.geometry.world import World
 
@@ -86,3 +86,12 @@ def make_robot(
     """
     cls = robot_class(model)
     return cls(world, radius, robot_params(model, params))
+
+
+def nominal_speed(robot: Robot) -> float:
+    """The robot's top speed in m/s (``max_speed``; racecar: wheel speed times radius)."""
+    params = robot.params
+    if isinstance(params, RacecarParams):
+        return float(params.max_wheel_speed * WHEEL_RADIUS)
+    speed = getattr(params, "max_speed", None)
+    return float(speed) if isinstance(speed, int | float) and speed > 0 else 1.0

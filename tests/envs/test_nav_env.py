@@ -529,20 +529,17 @@ def test_min_forward_maps_the_forward_command(envs: list[NavEnv]) -> None:
         build_env("point", 2, min_forward=0.2)
 
 
-def test_guide_feedforward_drives_toward_the_carrot_and_the_policy_corrects_it(
+def test_guide_feedforward_drives_along_the_guide_and_the_policy_corrects_it(
     envs: list[NavEnv],
 ) -> None:
-    from envs.feedforward import AHEAD, carrot_direction, pursuit_target
+    from envs.feedforward import pursuit_direction, pursuit_target
 
     env = build_env("point", 2, guide_feedforward=0.5)
     envs.append(env)
     env.reset(seed=0, options={"position": START_2D})
-    centres = env.legs[0].guide.centers
-    carrot = carrot_direction(centres, -1, START_2D)
-    assert np.linalg.norm(carrot) == pytest.approx(1.0)
-    assert np.allclose(
-        carrot * np.linalg.norm(centres[AHEAD - 1] - START_2D), centres[AHEAD - 1] - START_2D
-    )
+    track = env.legs[0].track
+    end = track.points[-1]
+    assert np.array_equal(pursuit_direction(track, len(track.points), end, 0.5), np.zeros(2))
     # the point robot (an acceleration command) heads for the point of the guide one braking
     # length ahead (max_speed^2 / max_accel = 0.5 m), from rest at full acceleration
     target = pursuit_target(env.legs[0].track, -1, START_2D, 0.5)
@@ -553,18 +550,28 @@ def test_guide_feedforward_drives_toward_the_carrot_and_the_policy_corrects_it(
     env.reset(seed=0, options={"position": START_2D})
     env.step(-0.5 * direction)  # the policy can cancel it
     assert np.allclose(env.robot.state[2:], 0.0)
-    assert np.array_equal(carrot_direction(centres, len(centres), centres[-1]), np.zeros(2))
     with pytest.raises(EnvConfigError, match=r"guide_feedforward: must be in \(0, 1\]"):
         build_env("point", 2, guide_feedforward=0.0)
 
 
-def test_guide_feedforward_steers_a_heading_robot_toward_the_carrot(envs: list[NavEnv]) -> None:
-    from envs.feedforward import carrot_direction, steering_toward
+def test_guide_feedforward_steers_a_heading_robot_toward_the_guide_ahead(
+    envs: list[NavEnv],
+) -> None:
+    from envs.feedforward import (
+        HEADING_LOOKAHEAD,
+        heading_direction,
+        pursuit_target,
+        steering_toward,
+    )
+    from envs.robots import nominal_speed
 
     env = build_env("unicycle", 2, guide_feedforward=1.0, min_forward=0.2)
     envs.append(env)
-    centres = env.legs[0].guide.centers
-    toward = carrot_direction(centres, -1, START_2D)
+    track = env.legs[0].track
+    toward = heading_direction(env.robot, track, -1, START_2D)
+    ahead = HEADING_LOOKAHEAD * nominal_speed(env.robot)
+    target = pursuit_target(track, -1, START_2D, ahead)
+    assert np.allclose(toward, (target - START_2D) / np.linalg.norm(target - START_2D))
     away = math.atan2(-toward[1], -toward[0])  # facing straight away: a full turn
     env.reset(seed=0, options={"position": START_2D, "heading": away + 0.1})
     assert abs(steering_toward(away + 0.1, toward)) == 1.0

@@ -224,7 +224,7 @@ def test_measured_training_defaults_apply_by_robot_and_yield_to_the_mission() ->
     ) == (0.0, None)
     quad = training.env_options("quadrotor")
     assert quad.guide_feedforward == 1.0
-    assert point.guide_feedforward == 1.0 and car.guide_feedforward is None
+    assert point.guide_feedforward == 1.0 and car.guide_feedforward == 1.0
     racecar = training.eval_env_options("racecar")  # evaluated as trained: same meaning
     assert (racecar.drivable_guide, racecar.guide_feedforward) == (1.45, 1.0)
     assert (racecar.feedforward_law, racecar.progress_window) == ("pursuit", 2)

@@ -57,7 +57,7 @@ def problems(data: dict[str, Any]) -> list[tuple[str, str]]:
 def test_the_planner_margin_defaults_to_the_robots_own() -> None:
     unset = parse_mission(mission())
     assert unset.planner.margin is None
-    assert unset.planner_options().margin == 0.0
+    assert unset.planner_options().margin == 0.3  # the unicycle's
     assert unset.planner_options().seed == 3
     quad = {"model": "quadrotor", "start": [-8, -8, 1], "radius": 0.2}
     world = {**BASE["world"], "bounds": [[-10, 10], [-10, 10], [0, 4]]}
