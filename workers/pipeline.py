@@ -31,10 +31,15 @@ PipelineProgress = Callable[[int, int, float | None, int, bool], None]
 
 class _QueueProgress(TrainingHooks):
     """A job's progress put on the parent's queue, its steps counted from ``offset`` (a repair
-    continues the sub-task's bar)."""
+    continues the sub-task's bar); the job stops (after a checkpoint, so a re-run resumes it)
+    once the process ``driver`` that waits for it is gone."""
 
-    def __init__(self, subtask: int, updates: Any, offset: int) -> None:
+    def __init__(self, subtask: int, updates: Any, offset: int, driver: int) -> None:
         self.subtask, self.updates, self.offset = subtask, updates, offset
+        self.driver = driver
+
+    def should_stop(self) -> bool:
+        return not process_alive(self.driver)
 
     def progress(self, steps: int, success_rate: float | None, total: int) -> None:
         self.put(steps, success_rate, total, False)
@@ -44,10 +49,26 @@ class _QueueProgress(TrainingHooks):
         self.updates.put((self.subtask, offset + steps, success_rate, offset + total, done))
 
 
-def _run_job(run: MissionRun, job: SubtaskJob, updates: Any, offset: int) -> TrainResult:
+def process_alive(pid: int) -> bool:
+    """Whether process ``pid`` exists (a killed ``ltlnav train`` leaves its pool's workers
+    behind: they ask this to stop instead of training on for nobody)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _run_job(
+    run: MissionRun, job: SubtaskJob, updates: Any, offset: int, driver: int
+) -> TrainResult:
     """One training job in a worker process."""
-    hooks = _QueueProgress(job.subtask, updates, offset)
+    hooks = _QueueProgress(job.subtask, updates, offset, driver)
     result = run.train(job, hooks)
+    if not process_alive(driver):
+        os._exit(0)  # nobody waits for the result, and an idle worker would wait forever
     rate = result.curve[-1][1] if result.curve else None
     hooks.put(result.steps, rate, job.training.n_timesteps, True)
     return result
@@ -81,6 +102,7 @@ def run_pipeline(
         for job in first:
             on_progress(job.subtask, 0, None, job.training.n_timesteps, False)
     workers = max(1, min(jobs or os.cpu_count() or 1, len(first)))
+    driver = os.getpid()
     context = training_context()
     with context.Manager() as manager:
         updates = manager.Queue()
@@ -93,7 +115,9 @@ def run_pipeline(
 
                 def train_all(batch: Sequence[SubtaskJob]) -> list[TrainResult]:
                     futures = [
-                        pool.submit(_run_job, run, job, updates, steps_before.get(job.subtask, 0))
+                        pool.submit(
+                            _run_job, run, job, updates, steps_before.get(job.subtask, 0), driver
+                        )
                         for job in batch
                     ]
                     out = [f.result() for f in futures]

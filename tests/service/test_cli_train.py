@@ -2,11 +2,18 @@
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import json
+import os
+import signal
+import subprocess
+import sys
+import time
 import zipfile
 from pathlib import Path
 
+import pytest
 import yaml
 from typer.testing import CliRunner
 
@@ -80,3 +87,68 @@ def test_train_reports_an_unknown_hyperparameter(tmp_path: Path) -> None:
     result = runner.invoke(app, ["train", str(mission), "--out", str(tmp_path / "run")])
     assert result.exit_code == EXIT_BAD_INPUT
     assert "training.hyperparams.gama" in result.output and "gamma" in result.output
+
+
+def _descendants(pid: int) -> list[int]:
+    children: dict[int, list[int]] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                parent = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            children.setdefault(parent, []).append(int(entry.name))
+    found, todo = [], [pid]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            found.append(child)
+            todo.append(child)
+    return found
+
+
+def _cpu_ticks(pids: list[int]) -> int:
+    total = 0
+    for pid in pids:
+        try:
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        total += int(fields[11]) + int(fields[12])  # utime + stime
+    return total
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="needs Linux /proc")
+def test_a_killed_train_leaves_no_worker_training(tmp_path: Path) -> None:
+    """SIGKILL of ``ltlnav train`` mid-training: its pool's workers stop within seconds (after a
+    checkpoint) and exit, instead of training on for nobody."""
+    mission = tmp_path / "mission.yaml"
+    mission.write_text(yaml.safe_dump(copy.deepcopy(TINY)))
+    out = tmp_path / "run"
+    ltlnav = Path(sys.executable).parent / "ltlnav"
+    args = [str(ltlnav), "train", str(mission), "--out", str(out), "--timesteps", "100000"]
+    proc = subprocess.Popen(
+        [*args, "--jobs", "2"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+    family: list[int] = []
+    try:
+        deadline = time.monotonic() + 120
+        while not list(out.glob("subtask_*/checkpoints")) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert proc.poll() is None, "ltlnav train ended before training"
+        time.sleep(2)
+        family = _descendants(proc.pid)
+        proc.kill()
+        proc.wait()
+        time.sleep(8)
+        before = _cpu_ticks(family)
+        time.sleep(4)
+        spent = _cpu_ticks(family) - before
+        assert spent <= 20, f"the orphans used {spent} CPU ticks in 4 s"  # 100 ticks a CPU-second
+        alive = [p for p in family if Path(f"/proc/{p}").exists()]
+        assert len(alive) <= 3  # at most forkserver, manager and resource tracker, all idle
+        assert list(out.glob("subtask_*/checkpoints/model_*_steps.zip"))  # it can resume
+    finally:
+        proc.kill()
+        for pid in family:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
