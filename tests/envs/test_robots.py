@@ -20,7 +20,8 @@ from envs.robots import (
     robot_params,
 )
 from envs.robots.quadrotor import Quadrotor
-from envs.robots.racecar import Racecar, prism, triangulate
+from envs.robots.racecar import Racecar
+from envs.robots.static_bodies import prism, triangulate
 from envs.spec import RobotModel
 from planner.geometry.shapes import Ball, Box, Polygon
 from planner.geometry.world import World
