@@ -119,8 +119,9 @@ radius that the robot's feed-forward holds. Measured with the zero action on the
 worlds of ``bench/generality.py`` (``bench/zero_grid.py``: tuning seeds 0-19, 20 starts a
 sub-task), sub-tasks held with the radius alone -> with 0.3 m: quadrotor (3D cities) 38 -> 52
 of 52, point robot (2D) 23 -> 48 of 52, racecar 9 -> 38 of 52, unicycle 26 -> 44 of 52 (with
-a feed-forward lookahead of 0.3 s; 47 at the adopted 0.2 s). The rest are mostly worlds of
-rooms whose narrowest door does not fit the margin, where the plan keeps the radius alone."""
+a feed-forward lookahead of 0.3 s; 47 at the adopted 0.2 s). The rest were mostly worlds of
+rooms whose narrowest door does not fit the margin; the plan now tries half of it there before
+the radius alone (``planner.plan.MARGIN_SHARES``)."""
 
 
 class MissionSpec(BaseModel):

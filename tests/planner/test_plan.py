@@ -114,6 +114,22 @@ def test_margin_keeps_the_guide_off_obstacles_and_falls_back_where_too_narrow() 
     assert verify_plan(wide, world, 0.02) == []
 
 
+def test_a_door_too_narrow_for_the_margin_keeps_half_of_it() -> None:
+    """A 0.6 m door: a 0.1 m robot with the 0.3 m margin needs 0.8 m, with half of it 0.5 m."""
+    world = World(
+        np.array([[0.0, 10.0], [0.0, 4.0]]),
+        [
+            Box(np.array([4.9, 0.0]), np.array([5.1, 1.7])),
+            Box(np.array([4.9, 2.3]), np.array([5.1, 4.0])),
+        ],
+        {"left": Ball(np.array([1.0, 2.0]), 0.4), "right": Ball(np.array([9.0, 2.0]), 0.4)},
+    )
+    opts = PlannerSpec(seed=0, refine_iterations=200, margin=0.3)
+    plan = plan_mission(world, "<>(left && <>right)", np.array([2.0, 1.0]), 0.1, opts)
+    assert plan.clearance == pytest.approx(0.25)
+    assert verify_plan(plan, world, 0.25) == []
+
+
 def test_bad_tasks() -> None:
     world = reference_world()
     with pytest.raises(FormulaError):
