@@ -163,13 +163,10 @@ what an action means and which guide the reward follows). Measured in ``bench/LE
   U-turn sub-tasks stayed at 0-69 % up to 150k steps; with them the zero action makes every
   sub-task of racecar phi_2,fin and 100 % of its missions, and each needs all three.
 
-* unicycle: the turn toward the guide's point ``HEADING_LOOKAHEAD`` seconds of its top speed
-  ahead (``envs.feedforward.heading_direction``), proportional to the heading error: on the
-  generated 2D worlds of ``bench/zero_grid.py`` (tuning seeds 0-19, margin 0.3 m) the zero
-  action alone holds 47 of 52 sub-tasks (50 of 54 on seeds 20-39), and every sub-task of
-  ``examples/car-phi2-fin.yaml``. Its former law, the turn toward the carrot two balls ahead,
-  held 16 of 52 and was no default: it trained the car's U-turn sub-task 2 of seed 4 (0 % at
-  80k -> 100 % at 25k) but held sub-task 3 at about 50 % on two seeds up to 120k."""
+* unicycle: the turn toward the guide's point ``HEADING_LOOKAHEAD`` seconds ahead
+  (``envs.feedforward.heading_direction``): on the tuning worlds of ``bench/zero_grid.py`` the
+  zero action alone holds 47 of 52 sub-tasks (the carrot two balls ahead, no default: 16), and
+  every sub-task of ``examples/car-phi2-fin.yaml``."""
 
 
 class RewardSpec(BaseModel):
