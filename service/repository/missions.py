@@ -8,7 +8,7 @@ from datetime import datetime
 from typing import Any, Literal
 
 from sqlalchemy import delete, func, select, update
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, joinedload
 
 from planner.errors import LtlnavError
 from service.models import (
@@ -80,9 +80,14 @@ def get_mission(session: Session, mission_id: str) -> Mission | None:
 
 
 def get_owned_mission(session: Session, mission_id: str, api_key: str | None) -> Mission | None:
-    """The mission if ``api_key`` created it, else None (the API answers 404 alike)."""
-    query = select(Mission).where(Mission.id == mission_id, _owned_by(api_key))
-    return session.scalars(query).one_or_none()
+    """The mission if ``api_key`` created it, else None (the API answers 404 alike). Its jobs
+    come in the same query (one round trip per read of the polled ``GET /missions/{id}``)."""
+    query = (
+        select(Mission)
+        .options(joinedload(Mission.jobs))
+        .where(Mission.id == mission_id, _owned_by(api_key))
+    )
+    return session.scalars(query).unique().one_or_none()
 
 
 def find_by_idempotency_key(

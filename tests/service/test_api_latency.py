@@ -108,3 +108,42 @@ def test_a_worker_lowers_its_own_priority() -> None:
     )
     expected = str(min(3, 19 - os.nice(0)))
     assert _run_python(code) == expected
+
+
+def test_reading_a_mission_takes_one_hop_to_the_thread_pool(
+    sqlite_url: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Pollers read missions: each hop between the event loop and the thread pool waits for
+    # the interpreter lock again, so the read does its session, query and view in one.
+    import anyio.to_thread
+
+    from service.api.views import mission_view
+    from service.repository import get_mission
+
+    upgrade(sqlite_url)
+    database = Database(sqlite_url)
+    settings = settings_for(tmp_path, sqlite_url, keys=["alpha", "beta"])
+    hops: list[str] = []
+    run_sync = anyio.to_thread.run_sync
+
+    async def counted(function, *args, **kwargs):  # type: ignore[no-untyped-def]
+        hops.append(getattr(function, "__name__", repr(function)))
+        return await run_sync(function, *args, **kwargs)
+
+    with TestClient(create_app(settings, RecordingEnqueue(database))) as http:
+        alpha = {"Authorization": "Bearer alpha"}
+        mission_id = http.post("/missions", json=tiny(), headers=alpha).json()["id"]
+        monkeypatch.setattr(anyio.to_thread, "run_sync", counted)
+        read = http.get(f"/missions/{mission_id}", headers=alpha)
+        read_hops = list(hops)
+        other_key = http.get(f"/missions/{mission_id}", headers={"Authorization": "Bearer beta"})
+        malformed = http.get("/missions/not-an-id", headers=alpha)
+    assert len(read_hops) == 1, read_hops
+    assert read.status_code == 200 and read.headers["content-type"] == "application/json"
+    with database.session() as session:
+        found = get_mission(session, mission_id)
+        assert found is not None
+        expected = mission_view(found).model_dump(mode="json", by_alias=True)
+    assert read.json() == expected and read.json()["links"]["self"] == f"/missions/{mission_id}"
+    assert other_key.status_code == 404 and malformed.status_code == 404
+    assert other_key.json()["detail"] == f"no mission {mission_id!r}"
