@@ -321,6 +321,9 @@ def main(argv: list[str] | None = None) -> None:
         help="robots (point-maze: the point robot on issue 18's maze, MAZE_SEEDS)",
     )
     p.add_argument("--missions", type=int, default=10, help="missions per robot")
+    p.add_argument(
+        "--first", type=int, default=0, help="train from this mission index on (a partial run)"
+    )
     p.add_argument("--jobs", type=int, default=2, help="--jobs of ltlnav train")
     p.add_argument("--out", default=str(ROOT / "var" / "bench" / "generality"))
     p.add_argument("--report", action="store_true", help="print the table of what is on disk")
@@ -328,7 +331,8 @@ def main(argv: list[str] | None = None) -> None:
     out = Path(args.out)
     if not args.report:
         os.environ.setdefault("OMP_NUM_THREADS", "1")
-        for index in range(args.missions):  # robot after robot per index: partial runs mix
+        # Robot after robot per index: partial runs mix the robots.
+        for index in range(args.first, args.missions):
             for robot in args.robots:
                 if robot != "point-maze" or index < len(MAZE_SEEDS):
                     run_mission(robot, index, out, args.jobs)
