@@ -60,9 +60,11 @@ def product_shortest_paths(
     (negative where none)."""
     q_count = reach.shape[1]
     n_points = len(labels)
-    a = np.concatenate([u, v])
-    b = np.concatenate([v, u])
-    w = np.concatenate([d, d])
+    u, v, d = _shortest_edges(u, v, d, n_points)
+    back = u != v  # a loop is one directed edge already
+    a = np.concatenate([u, v[back]])
+    b = np.concatenate([v, u[back]])
+    w = np.concatenate([d, d[back]])
     rows, cols, weights = [], [], []
     for q in range(q_count):
         edge, q2 = np.nonzero(reach[labels[b], q, :])
@@ -70,23 +72,26 @@ def product_shortest_paths(
         cols.append(b[edge] * q_count + q2)
         weights.append(w[edge])
     size = n_points * q_count
+    # Each geometric edge is there once and each (edge, q, q') once: no product edge repeats.
+    graph = csr_matrix(
+        (np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))),
+        shape=(size, size),
+    )
     cost, pred, _ = dijkstra(
-        _min_duplicates(rows, cols, weights, size),
-        directed=True,
-        indices=roots,
-        return_predecessors=True,
-        min_only=True,
+        graph, directed=True, indices=roots, return_predecessors=True, min_only=True
     )
     return cost.reshape(n_points, q_count), pred.reshape(n_points, q_count)
 
 
-def _min_duplicates(
-    rows: list[np.ndarray], cols: list[np.ndarray], weights: list[np.ndarray], size: int
-) -> csr_matrix:
-    """A sparse matrix of the edges keeping, for repeated (row, col) pairs, the least weight."""
-    r, c, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(weights)
-    order = np.lexsort((w, c, r))
-    r, c, w = r[order], c[order], w[order]
-    first = np.ones(len(r), dtype=bool)
-    first[1:] = (r[1:] != r[:-1]) | (c[1:] != c[:-1])
-    return csr_matrix((w[first], (r[first], c[first])), shape=(size, size))
+def _shortest_edges(
+    u: np.ndarray, v: np.ndarray, d: np.ndarray, n_points: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The roadmap's edges once each, as ``(low end, high end, least length)``: an edge is
+    recorded again whenever a rewiring checks it."""
+    low, high = np.minimum(u, v), np.maximum(u, v)
+    key = low * n_points + high
+    order = np.lexsort((d, key))
+    key, d = key[order], d[order]
+    first = np.ones(len(key), dtype=bool)
+    first[1:] = key[1:] != key[:-1]
+    return low[order][first], high[order][first], d[first]
