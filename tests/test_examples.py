@@ -20,7 +20,9 @@ TASKS = {
     "car-phi2-fin": "[]!obstacle && <>(g1 && <>(g2 && <>(g3 && <>ginit)))",
     "car-phi2-inf": "[]!obstacle && []<>(g1 && <>(g2 && <>g3))",
     "car-phi3-fin": SEQUENCE_12,
+    "car-phi3-inf": "[]!obstacle && " + " && ".join(f"[]<>g{i}" for i in range(1, 13)),
     "racecar-phi2-fin": "[]!obstacle && <>(g1 && <>(g2 && <>(g3 && <>ginit)))",
+    "racecar-phi2-inf": "[]!obstacle && []<>(g1 && <>(g2 && <>g3))",
     "quad-phi1-fin": "[]!obstacle && <>g1 && <>g2 && <>g3",
     "quad-phi1-inf": "[]!obstacle && []<>g1 && []<>g2 && []<>g3",
     "quad-phi3-fin": SEQUENCE_12,
@@ -30,7 +32,7 @@ TASKS = {
 }
 WORLDS = {"car": (2, 50, 4), "racecar": (2, 50, 4), "quad": (3, 25, 12), "tlrrt": (2, 2, 6)}
 """Per family: dimension, obstacles, regions (``WORLD_OF`` for an example with other regions)."""
-WORLD_OF = {"car-phi3-fin": (2, 50, 12)}
+WORLD_OF = {"car-phi3-fin": (2, 50, 12), "car-phi3-inf": (2, 50, 12)}
 
 
 def load(name: str) -> MissionSpec:
@@ -52,8 +54,13 @@ def test_example_loads_with_its_task(name: str) -> None:
     dim, obstacles, regions = WORLD_OF.get(name) or WORLDS[name.split("-")[0]]
     world = spec.build_world()
     assert (world.dim, len(world.obstacles), len(world.region_names)) == (dim, obstacles, regions)
-    if name == "car-phi3-fin":  # the car world's boxes, its own goals
+    if name in ("car-phi3-fin", "car-phi3-inf"):  # the car world's boxes, 12 goals of its own
         assert spec.world.obstacles == load("car-phi2-fin").world.obstacles
+        assert spec.world.regions == load("car-phi3-fin").world.regions
+    if name == "racecar-phi2-inf":  # the car's patrol, driven by the racecar
+        assert spec.world == load("car-phi2-inf").world
+        assert spec.robot == load("racecar-phi2-fin").robot
+        assert spec.planner == load("racecar-phi2-fin").planner
     assert atoms(parse(spec.task)) - {"obstacle"} <= set(world.region_names)
 
 
