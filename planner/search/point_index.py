@@ -37,6 +37,22 @@ class PointIndex:
         self._pts[self.size] = x
         self._ids[self.size] = pid
         self.size += 1
+        self._rebuild_if_due()
+
+    def add_many(self, pids: np.ndarray, xs: np.ndarray) -> None:
+        """Insert the ids ``pids`` at the rows of ``xs``, in this order (as ``add`` one by one
+        would: every query answers the same)."""
+        end = self.size + len(pids)
+        if end > len(self._ids):
+            capacity = max(end, 2 * len(self._ids))
+            self._pts = np.concatenate([self._pts, np.empty((capacity - len(self._ids), self.dim))])
+            self._ids = np.concatenate([self._ids, np.empty(capacity - len(self._ids), np.int64)])
+        self._pts[self.size : end] = xs
+        self._ids[self.size : end] = pids
+        self.size = end
+        self._rebuild_if_due()
+
+    def _rebuild_if_due(self) -> None:
         if self.size - self._frozen > max(_MIN_TAIL, self.size // 8):
             self._kd = cKDTree(self._pts[: self.size])
             self._frozen = self.size

@@ -189,15 +189,50 @@ class ProductTree:
         )
         points, states = np.nonzero(np.isfinite(cost) & (self.node_at[: self.npts] < 0))
         rank = np.lexsort((states, points, cost[points, states]))
-        created = []
-        for k in rank.tolist():
-            p, s = int(points[k]), int(states[k])
-            before = int(pred[p, s])
-            parent = int(self.node_at[before // q_count, before % q_count])
-            assert parent >= 0, "Dijkstra's predecessor is cheaper, hence exists already"
-            length = float(np.linalg.norm(self.pos[p] - self.pos[before // q_count]))
-            created.append(self.add_node(p, s, parent, float(self.cost[parent]) + length))
-        return created
+        points, states = points[rank], states[rank]
+        before = pred[points, states]
+        return self._add_flooded(points, states, before // q_count, before % q_count)
+
+    def _add_flooded(
+        self, pids: np.ndarray, qs: np.ndarray, parent_pids: np.ndarray, parent_qs: np.ndarray
+    ) -> list[int]:
+        """``add_node`` for the nodes ``(pids[k], qs[k])`` in this order, each under the node
+        ``(parent_pids[k], parent_qs[k])`` (which exists, or comes earlier) at its cost plus
+        the segment between their points: the same tree, in bulk."""
+        first, count = len(self.node_q), len(pids)
+        if count == 0:
+            return []
+        nids = np.arange(first, first + count)
+        fresh = ~(self.node_at[pids] >= 0).any(axis=1)
+        self.node_at[pids, qs] = nids
+        parents = self.node_at[parent_pids, parent_qs]
+        assert (parents >= 0).all(), "Dijkstra's predecessor is cheaper, hence exists already"
+        while len(self.cost) < first + count:
+            self.cost = np.concatenate([self.cost, np.full_like(self.cost, math.inf)])
+        cost = self.cost
+        lengths = [float(np.linalg.norm(d)) for d in self.pos[pids] - self.pos[parent_pids]]
+        parent_list = parents.tolist()
+        for nid, parent, length in zip(nids.tolist(), parent_list, lengths, strict=True):
+            cost[nid] = float(cost[parent]) + length
+        self.node_pt.extend(pids.tolist())
+        self.node_q.extend(qs.tolist())
+        self.parent.extend(parent_list)
+        self.children.extend([] for _ in range(count))
+        for nid, parent in zip(nids.tolist(), parent_list, strict=True):
+            self.children[parent].append(nid)
+        fresh_pids = pids[fresh]
+        _, first_at = np.unique(fresh_pids, return_index=True)
+        reached = fresh_pids[np.sort(first_at)]
+        self.reached.add_many(reached, self.pos[reached])
+        for pid in reached.tolist():
+            self.entered |= self.mask[pid]
+        for q in np.unique(qs).tolist():
+            layer = self.layers.get(q)
+            if layer is None:
+                layer = self.layers[q] = PointIndex(self.dim)
+            at = pids[qs == q]
+            layer.add_many(at, self.pos[at])
+        return nids.tolist()
 
     def add_node(self, pid: int, q: int, parent: int, cost: float) -> int:
         """Create product node ``(point pid, q)`` under ``parent`` (-1 for a root)."""

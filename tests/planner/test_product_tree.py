@@ -1,0 +1,73 @@
+"""What every product tree of a TL-RRT* run keeps true, through floods, rewiring and the
+suffix trees seeded from the prefix tree's roadmap."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from planner.ltl.translate import translate
+from planner.search.planner_spec import PlannerSpec
+from planner.search.point_index import PointIndex
+from planner.search.product_tree import ProductTree
+from planner.search.tl_rrt_star import _Planner
+from tests.planner.test_tl_rrt_star import START, world_2d
+
+
+def _ids(index: PointIndex) -> list[int]:
+    return sorted(index.within(np.zeros(index.dim), math.inf).tolist())
+
+
+def assert_consistent(tree: ProductTree) -> None:
+    nodes = tree.num_nodes
+    pts = np.array(tree.node_pt)
+    qs = np.array(tree.node_q)
+    assert (tree.node_at[pts, qs] == np.arange(nodes)).all()
+    assert (tree.node_at[: tree.npts] >= 0).sum() == nodes
+    for nid in range(nodes):
+        parent = tree.parent[nid]
+        if parent < 0:
+            assert nid in tree.roots and tree.cost[nid] == 0.0
+            continue
+        assert nid in tree.children[parent]
+        step = float(np.linalg.norm(tree.pos[pts[nid]] - tree.pos[pts[parent]]))
+        assert tree.cost[nid] == pytest.approx(tree.cost[parent] + step, abs=1e-9)
+    assert sum(len(c) for c in tree.children) == nodes - len(tree.roots)
+    carrying = np.flatnonzero((tree.node_at[: tree.npts] >= 0).any(axis=1))
+    assert _ids(tree.reached) == carrying.tolist()
+    entered = 0
+    for pid in carrying.tolist():
+        entered |= tree.mask[pid]
+    assert tree.entered == entered
+    for q, layer in tree.layers.items():
+        assert _ids(layer) == np.flatnonzero(tree.node_at[: tree.npts, q] >= 0).tolist()
+
+
+def test_every_tree_of_a_patrol_stays_consistent() -> None:
+    spec = PlannerSpec(seed=4, refine_iterations=300)
+    nba = translate("[]<>a && []<>b && []<>c && [](!d)")
+    planner = _Planner(world_2d(), nba, START, 0.1, spec, np.random.default_rng(4))
+    planner.run()
+    assert planner.suffixes, "the patrol needs suffix trees"
+    for tree in [planner.prefix.tree, *(s.tree for s in planner.suffixes)]:
+        assert_consistent(tree)
+
+
+def test_points_added_together_answer_as_added_one_by_one() -> None:
+    rng = np.random.default_rng(0)
+    xs = rng.uniform(0, 10, (3000, 2))
+    ids = rng.permutation(5000)[:3000]
+    one, many = PointIndex(2), PointIndex(2)
+    for pid, x in zip(ids[:100], xs[:100], strict=True):
+        one.add(int(pid), x)
+    many.add_many(ids[:100], xs[:100])
+    for pid, x in zip(ids[100:], xs[100:], strict=True):
+        one.add(int(pid), x)
+    for start in range(100, 3000, 700):  # batches that cross several rebuilds
+        many.add_many(ids[start : start + 700], xs[start : start + 700])
+    for q in rng.uniform(-1, 11, (200, 2)):
+        assert one.nearest(q) == many.nearest(q)
+        assert one.within(q, 0.7).tolist() == many.within(q, 0.7).tolist()
+        assert one.within(q, 2.0, k=9).tolist() == many.within(q, 2.0, k=9).tolist()
