@@ -334,7 +334,10 @@ class BatchEval:
         self.envs = [make(noise, heading) for _ in range(n)]
 
     def run(self, model: Any, seed: int) -> dict[str, float]:
+        from workers.policy_act import deterministic_act
+
         n = len(self.envs)
+        act_on = deterministic_act(model.policy)
         obs = np.stack([e.reset(seed=seed + i)[0] for i, e in enumerate(self.envs)])
         live = np.ones(n, dtype=bool)
         success = np.zeros(n, dtype=bool)
@@ -343,7 +346,7 @@ class BatchEval:
         reach = np.zeros(n)
         while live.any():
             idx = np.flatnonzero(live)
-            act, _ = model.predict(obs[idx], deterministic=True)
+            act = act_on(obs[idx])
             for j, k in enumerate(idx):
                 o, _, term, trunc, info = self.envs[k].step(act[j])
                 obs[k] = o

@@ -161,6 +161,7 @@ def evaluation_cost(folder: Path, lanes: int = 10, episodes: int = 200) -> str:
     from workers.agents import ALGORITHMS
     from workers.evaluation import evaluate_subtask
     from workers.mission import load_mission
+    from workers.policy_act import deterministic_act
     from workers.run import stored_or_new_plan
     from workers.training import subtask_env
 
@@ -173,9 +174,7 @@ def evaluation_cost(folder: Path, lanes: int = 10, episodes: int = 200) -> str:
     for k in range(len(plan.subtasks)):
         model = cls.load(folder / "run" / f"subtask_{k}" / "model.zip", device="cpu")
 
-        def act(obs: Any, model: Any = model) -> Any:
-            return model.predict(obs, deterministic=True)[0]
-
+        act = deterministic_act(model.policy)
         envs = [subtask_env(mission, plan, mission.training, k, True) for _ in range(lanes)]
         seconds: dict[int, list[float]] = {1: [], lanes: []}
         rates: dict[int, float] = {}
