@@ -12,8 +12,10 @@ import multiprocessing
 import os
 import queue
 import threading
+import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
+from multiprocessing.managers import SyncManager
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +25,9 @@ from workers.limits import AdmissionLimits
 from workers.mission import MissionSpec
 from workers.run import MissionRun, RunResult, Spread
 from workers.training import TrainResult
+
+DRIVER_POLL_SECONDS = 1.0
+"""How often the progress queue's manager checks that the driver still runs."""
 
 PipelineProgress = Callable[[int, int, float | None, int, bool], None]
 """``on_progress(subtask, steps, success_rate, total, done)``, called in the parent process;
@@ -66,12 +71,35 @@ def _run_job(
 ) -> TrainResult:
     """One training job in a worker process."""
     hooks = _QueueProgress(job.subtask, updates, offset, driver)
-    result = run.train(job, hooks)
+    _training.set()
+    try:
+        result = run.train(job, hooks)
+    finally:
+        _training.clear()
     if not process_alive(driver):
         os._exit(0)  # nobody waits for the result, and an idle worker would wait forever
     rate = result.curve[-1][1] if result.curve else None
     hooks.put(result.steps, rate, job.training.n_timesteps, True)
     return result
+
+
+_training = threading.Event()
+"""Set in a pool worker while it trains a job (which stops by itself, after a checkpoint)."""
+
+
+def _follow_driver(driver: int) -> None:
+    """In the progress queue's manager and in every pool worker: exit once the driver is gone
+    (a worker that trains, once its job has stopped). They would otherwise wait for a
+    shutdown, or a task, that nobody sends, and keep the forkserver (which lives while a
+    process it forked does) and the resource tracker alive: a killed ``ltlnav train`` left
+    them all behind."""
+
+    def watch() -> None:
+        while process_alive(driver) or _training.is_set():
+            time.sleep(DRIVER_POLL_SECONDS)
+        os._exit(0)
+
+    threading.Thread(target=watch, name="follow-driver", daemon=True).start()
 
 
 def training_context() -> multiprocessing.context.ForkServerContext:
@@ -104,13 +132,20 @@ def run_pipeline(
     workers = max(1, min(jobs or os.cpu_count() or 1, len(first)))
     driver = os.getpid()
     context = training_context()
-    with context.Manager() as manager:
+    manager = SyncManager(ctx=context)
+    manager.start(_follow_driver, (driver,))
+    with manager:
         updates = manager.Queue()
         done = threading.Event()
         relay = threading.Thread(target=_relay, args=(updates, done, on_progress), daemon=True)
         relay.start()
         try:
-            with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
+            with ProcessPoolExecutor(
+                max_workers=workers,
+                mp_context=context,
+                initializer=_follow_driver,
+                initargs=(driver,),
+            ) as pool:
                 steps_before: dict[int, int] = {}
 
                 def train_all(batch: Sequence[SubtaskJob]) -> list[TrainResult]:
