@@ -27,7 +27,8 @@ from workers.run import MissionRun, RunResult, Spread
 from workers.training import TrainResult
 
 DRIVER_POLL_SECONDS = 1.0
-"""How often the progress queue's manager checks that the driver still runs."""
+"""How often the progress queue's manager and the pool workers check that the driver still
+runs (``_follow_driver``)."""
 
 PipelineProgress = Callable[[int, int, float | None, int, bool], None]
 """``on_progress(subtask, steps, success_rate, total, done)``, called in the parent process;
