@@ -31,6 +31,7 @@ import httpx
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from bench.service import EXAMPLE, Layout, api_server, bench_mission  # noqa: E402
+from bench.service_load import cpu_seconds, server_seconds  # noqa: E402
 
 MISSIONS = 20
 BURST = 20
@@ -46,11 +47,6 @@ class Figures:
     burst: list[float] = field(default_factory=list)
 
 
-def cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
 def sequential(url: str, pid: int, ids: list[str], reads: int, into: Figures) -> None:
     with httpx.Client(base_url=url) as client:
         for index in range(200):
@@ -61,7 +57,7 @@ def sequential(url: str, pid: int, ids: list[str], reads: int, into: Figures) ->
             response = client.get(f"/missions/{ids[index % MISSIONS]}")
             into.client.append(time.perf_counter() - began)
             response.raise_for_status()
-            into.server.append(float(response.headers["server-timing"].split("=")[1]) / 1000)
+            into.server.append(server_seconds(response))
         into.cpu_per_read.append((cpu_seconds(pid) - cpu_before) / reads)
 
 
