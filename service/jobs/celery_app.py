@@ -25,6 +25,7 @@ from celery.signals import worker_init, worker_ready, worker_shutdown
 from kombu import Connection
 from kombu.transport import sqlalchemy as kombu_sqla
 
+from service.jobs import embedded_broker
 from service.redact import redact_url, redact_urls
 from service.settings import Settings, get_settings
 
@@ -80,6 +81,7 @@ def _dispose_kombu_engines() -> None:
 
 
 os.register_at_fork(after_in_child=_dispose_kombu_engines)
+embedded_broker.install()
 
 
 def celery_config(settings: Settings) -> dict[str, Any]:
