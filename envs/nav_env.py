@@ -9,7 +9,10 @@ progress index set to match) and ends when
 * the judge of the reward mode says the goal is reached (the goal region contains the robot's
   point, or with ``goal_judge`` ``"guide_end"`` the guide's last r-ball does; ``tl``/``g-rrt``:
   the automaton made the sub-task's transition(s)): terminated, ``R++``, ``is_success`` True;
-  an automaton violation ends like a crash;
+* the labels seen leave the sub-task's automaton stage (a region the formula forbids there, e.g.
+  ``g2`` before ``g1`` in ``!g2 U g1``): terminated like a crash, ``R-``, ``violation`` True.
+  Every reward mode is judged so when the env has the plan's automaton (``make_env`` with
+  ``plan=``), as the whole mission is;
 * optionally, no new r-ball was reached for ``stall_steps`` steps (see ``envs.options.EnvOptions``);
 * the step limit is hit: truncated, ``is_success`` False.
 
@@ -117,7 +120,7 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.guide_length = sum(leg.guide.length for leg in self.legs)
         self._labels = world.labeler.point_labels
         self._automaton: AutomatonTracker | None = None
-        if mode.automaton and nba is not None:
+        if nba is not None:
             stages = [
                 Stage(leg.subtask.nba_state, leg.subtask.next_nba_state, leg.subtask.goal)
                 for leg in self.legs
@@ -284,12 +287,10 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         crashed = robot.collided()
         if crashed:
             outcome = RUNNING
-        elif self._automaton is None:
-            goal = leg.goal if self.options.goal_judge == "region" else None
-            reached = goal.contains(x) if goal is not None else d == 0.0
-            outcome = SUCCESS if reached else RUNNING
-        else:
+        elif self.mode.automaton:
             outcome = self._automaton_outcome(x, d)
+        else:
+            outcome = self._region_outcome(leg, x, d)
         success, violation = outcome == SUCCESS, outcome == VIOLATION
         terminated = crashed or outcome != RUNNING
         gain = 0.0
@@ -322,6 +323,19 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
     def _continuous_togo(self, x: list[float]) -> float:
         """``envs.potential``'s guide left from ``x`` (``dense_progress``)."""
         return self._guide_potential.value(self._leg_k, self._index - self._leg.offset, x)
+
+    def _region_outcome(self, leg: Leg, x: list[float], d: float) -> int:
+        """SUCCESS when the goal region (or the guide's last ball) holds ``x``; else VIOLATION
+        when the labels seen so far leave the sub-task's automaton stage (given the plan), else
+        RUNNING."""
+        goal = leg.goal if self.options.goal_judge == "region" else None
+        if goal.contains(x) if goal is not None else d == 0.0:
+            return SUCCESS
+        tracker = self._automaton
+        if tracker is not None and not tracker.done:
+            if tracker.read(self._labels(x), d == 0.0) < 0:
+                return VIOLATION
+        return RUNNING
 
     def _automaton_outcome(self, x: list[float], d: float) -> int:
         """Feed ``L(x)`` to the automaton: RUNNING (moving on to the next leg when a stage

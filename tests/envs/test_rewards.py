@@ -98,6 +98,30 @@ def test_tl_env_ends_on_a_specification_violation() -> None:
     assert info["violation"] and not info["collision"] and info["is_success"] is False
 
 
+@pytest.mark.parametrize("reward", ["rrt", "rrt-paper", "ned"])
+def test_every_reward_mode_ends_on_a_violation_when_the_env_has_the_plan(reward: str) -> None:
+    world, plan = planned(2, "!g2 U g1")
+    env = make_env(mission("point", 2), plan.subtasks[0], reward, world=world, plan=plan)
+    env.reset(seed=0, options={"position": [1.75, 8.75]})  # inside g2, which !g2 U g1 forbids
+    _, reward_, terminated, truncated, info = env.step(np.zeros(2))
+    assert terminated and not truncated and reward_ == env.mode.crash
+    assert info["violation"] and not info["collision"] and info["is_success"] is False
+    # Inside the goal the sub-task succeeds as before; outside both regions it runs on.
+    env.reset(seed=0, options={"position": list(world.regions["g1"].center)})
+    assert env.step(np.zeros(2))[4]["is_success"]
+    env.reset(seed=0, options={"start": 0})
+    _, _, terminated, _, info = env.step(np.zeros(2))
+    assert not terminated and not info["violation"]
+
+
+def test_without_the_plan_a_sub_task_env_judges_only_its_goal_region() -> None:
+    world, plan = planned(2, "!g2 U g1")
+    env = make_env(mission("point", 2), plan.subtasks[0], "rrt", world=world)
+    env.reset(seed=0, options={"position": [1.75, 8.75]})
+    _, _, terminated, _, info = env.step(np.zeros(2))
+    assert not terminated and not info["violation"]
+
+
 def test_ned_env_pays_the_distance_to_the_goal_region() -> None:
     world, plan = planned(2, "<>(g1 && <>g2)")
     sub = plan.subtasks[0]
