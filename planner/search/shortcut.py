@@ -21,6 +21,7 @@ deterministic (no sampling), so the result depends only on the input lasso.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -57,7 +58,9 @@ def _length(x: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(x, axis=0), axis=1).sum()) if len(x) > 1 else 0.0
 
 
-class _Ops:
+class Ops:
+    """The local moves of polishing and their validity checks (see the module docstring)."""
+
     def __init__(
         self, world: World, oracle: LabelOracle, succ: Successors, clearance: float
     ) -> None:
@@ -70,8 +73,11 @@ class _Ops:
         return ~np.asarray(self.world.in_collision(x, self.clearance), dtype=bool)
 
     # ---------------------------------------------------------------------------- shortcut
-    def shortcut(self, x: np.ndarray, q: list[int]) -> tuple[np.ndarray, list[int]]:
-        """Greedy farthest-reachable shortcutting of one polyline with its states."""
+    def shortcut(
+        self, x: np.ndarray, q: list[int], accept: Callable[[int, int], bool] | None = None
+    ) -> tuple[np.ndarray, list[int]]:
+        """Greedy farthest-reachable shortcutting of one polyline with its states; ``accept``
+        may veto the shortcut from waypoint i to j."""
         last = len(x) - 1
         if last < 2:
             return x, q
@@ -86,7 +92,8 @@ class _Ops:
                 allowed = {q[i]}
                 for j, g in zip(js.tolist(), geo.tolist(), strict=True):
                     allowed.add(q[j - 1])
-                    if g and allowed <= {q[i], q[j]} and q[j] in self.succ(q[i], masks[j]):
+                    valid = g and allowed <= {q[i], q[j]} and q[j] in self.succ(q[i], masks[j])
+                    if valid and (accept is None or accept(i, j)):
                         best = j
             keep.append(best)
             i = best
@@ -111,14 +118,14 @@ class _Ops:
                 if idx.size == 0:
                     break
                 cand = p[idx] + step * (goal[idx] - p[idx])
-                good = self._moves_ok(
+                good = self.moves_ok(
                     a[idx], cand, b[idx], [q[k - 1] for k in ks[idx]], [q[k] for k in ks[idx]]
                 )
                 x[ks[idx[good]]] = cand[good]
                 todo[idx[good]] = False
         return x
 
-    def _moves_ok(
+    def moves_ok(
         self, a: np.ndarray, c: np.ndarray, b: np.ndarray, q_prev: list[int], q_here: list[int]
     ) -> np.ndarray:
         """Whether waypoints moved to ``c`` (between ``a`` and ``b``) keep the run valid."""
@@ -157,7 +164,7 @@ class _Ops:
             rows, cols = np.nonzero(better)
             if rows.size == 0:
                 continue
-            good = self._moves_ok(
+            good = self.moves_ok(
                 a[rows],
                 cand[rows, cols],
                 b[rows],
@@ -293,7 +300,7 @@ def polish(
 ) -> LassoRun:
     """Shorten ``run`` by rounds of subdivide / tighten / shortcut (see the module docstring);
     returns ``run`` itself if nothing valid and cheaper is found."""
-    ops = _Ops(world, oracle, succ, clearance)
+    ops = Ops(world, oracle, succ, clearance)
     best = _shortcut_run(ops, run)
     step = eta / 2.0
     for _ in range(max_rounds):
@@ -326,7 +333,7 @@ def polish(
     return best
 
 
-def _shortcut_run(ops: _Ops, run: LassoRun) -> LassoRun:
+def _shortcut_run(ops: Ops, run: LassoRun) -> LassoRun:
     p, pq = ops.shortcut(run.prefix, run.prefix_states)
     s, sq = ops.shortcut(run.suffix, run.suffix_states)
     if len(s) == 2 and np.array_equal(s[0], s[1]):

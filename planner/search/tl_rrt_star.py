@@ -36,10 +36,11 @@ from planner.geometry.labels import LabelOracle
 from planner.geometry.world import World
 from planner.ltl.automaton import Buchi
 from planner.search.growth import Growth, SuffixGrowth
+from planner.search.keep_out import KeepOut, forbidden_regions
 from planner.search.planner_spec import PlannerSpec
 from planner.search.product_sampling import Realisable, Sampler, Stepper
 from planner.search.product_tree import ProductTree
-from planner.search.shortcut import LassoRun, polish
+from planner.search.shortcut import LassoRun, Ops, polish
 
 
 @dataclass
@@ -314,6 +315,7 @@ class _Planner:
         if self.options.shortcut:
             polished = [self._polish(c) for c in candidates]
             best = min(polished, key=lambda c: c.cost)
+        best = self._keep_out(best)
         best.stats = {
             "first_seconds": t_first,
             "first_cost": first.cost,
@@ -327,6 +329,19 @@ class _Planner:
     def _polish(self, lasso: Lasso) -> Lasso:
         run = LassoRun(lasso.prefix, lasso.suffix, lasso.prefix_states, lasso.suffix_states, self.w)
         out = polish(run, self.world, self.oracle, self.stepper, self.clearance, self.eta)
+        return make_lasso(out.prefix, out.suffix, out.prefix_states, out.suffix_states, self.w)
+
+    def _keep_out(self, lasso: Lasso) -> Lasso:
+        """``lasso`` pushed to the clearance from the regions forbidden where it passes
+        (:mod:`planner.search.keep_out`)."""
+        forbidden = forbidden_regions(self.nba, self.world, self.oracle.names, self.clearance)
+        if not forbidden:
+            return lasso
+        ops = Ops(self.world, self.oracle, self.stepper, self.clearance)
+        run = LassoRun(lasso.prefix, lasso.suffix, lasso.prefix_states, lasso.suffix_states, self.w)
+        out = KeepOut(ops, self.world, forbidden, self.clearance).apply(run)
+        if out is run:
+            return lasso
         return make_lasso(out.prefix, out.suffix, out.prefix_states, out.suffix_states, self.w)
 
 

@@ -1,0 +1,69 @@
+"""Plans keep the clearance from regions the task forbids where the path passes them."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from planner.geometry.shapes import Ball, Box
+from planner.geometry.world import World
+from planner.ltl.translate import translate
+from planner.plan import MissionPlan, plan_mission, verify_plan
+from planner.search.keep_out import forbidden_regions
+from planner.search.planner_spec import PlannerSpec
+
+CLEARANCE = 0.5
+START = np.array([1.0, 5.0])
+QUICK = PlannerSpec(seed=0, refine_seconds=0.3)
+
+
+def corridor() -> World:
+    """A 10 x 10 m room: the straight way from the start to g1 passes 0.1 m below g2, and a
+    wall below it leaves room to pass g2 at the clearance."""
+    return World(
+        np.array([[0.0, 10.0], [0.0, 10.0]]),
+        [Box(np.array([3.0, 0.0]), np.array([7.0, 3.0]))],
+        {
+            "g1": Ball(np.array([9.0, 5.0]), 0.8),
+            "g2": Ball(np.array([5.0, 6.1]), 1.0),
+        },
+    )
+
+
+def least_distance(plan: MissionPlan, region: str, world: World) -> float:
+    path = np.asarray(plan.subtasks[0].path)
+    t = np.linspace(0.0, 1.0, 200)
+    dense = (path[:-1, None, :] + t[None, :, None] * (path[1:] - path[:-1])[:, None, :]).reshape(
+        -1, 2
+    )
+    return float(world.regions[region].distance(dense).min())
+
+
+def test_the_regions_forbidden_in_each_state() -> None:
+    world = corridor()
+    until = translate("!g2 U g1")
+    forbidden = forbidden_regions(until, world, ["g1", "g2"], CLEARANCE)
+    assert forbidden == {until.initial: ("g2",)}
+    avoid = translate("[]!g2 && <>g1")
+    assert all(
+        regions == ("g2",)
+        for regions in forbidden_regions(avoid, world, ["g1", "g2"], CLEARANCE).values()
+    )
+    assert set(forbidden_regions(avoid, world, ["g1", "g2"], CLEARANCE)) == set(
+        range(avoid.num_states)
+    )
+    assert forbidden_regions(translate("<>g1 && <>g2"), world, ["g1", "g2"], CLEARANCE) == {}
+
+
+@pytest.mark.parametrize("task", ["!g2 U g1", "[]!g2 && <>g1"])
+def test_a_forbidden_region_is_passed_at_the_clearance(task: str) -> None:
+    world = corridor()
+    plan = plan_mission(world, task, START, CLEARANCE, QUICK)
+    assert verify_plan(plan, world, CLEARANCE) == []
+    assert least_distance(plan, "g2", world) >= CLEARANCE - 1e-3
+
+
+def test_a_region_the_task_allows_is_passed_as_close_as_the_shortest_path_goes() -> None:
+    world = corridor()
+    plan = plan_mission(world, "<>g1", START, CLEARANCE, QUICK)
+    assert least_distance(plan, "g2", world) < 0.2
