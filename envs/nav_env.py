@@ -332,10 +332,9 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         if goal.contains(x) if goal is not None else d == 0.0:
             return SUCCESS
         tracker = self._automaton
-        if tracker is not None and not tracker.done:
-            if tracker.read(self._labels(x), d == 0.0) < 0:
-                return VIOLATION
-        return RUNNING
+        if tracker is None or tracker.done:
+            return RUNNING
+        return VIOLATION if tracker.read(self._labels(x), d == 0.0) < 0 else RUNNING
 
     def _automaton_outcome(self, x: list[float], d: float) -> int:
         """Feed ``L(x)`` to the automaton: RUNNING (moving on to the next leg when a stage
