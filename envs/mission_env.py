@@ -44,7 +44,9 @@ class MissionEnv(gym.Env[np.ndarray, np.ndarray]):
     cycles of an episode.
     Observation: the current sub-task env's observation, then the stage number (position in
     ``planner.decompose.lasso_stages``). Ends on a collision (``failure = "collision"``), a
-    sub-task running out of steps (``"timeout"``) or after the last stage; then ``info`` holds
+    sub-task leaving its automaton stage (``"rejected"``, filed under that sub-task), a
+    sub-task running out of steps (``"timeout"``) or after the last stage, where the automaton
+    judges the whole trace (``"rejected"`` without a sub-task when it refuses); then ``info`` holds
     ``accepted`` (the automaton's verdict on the label trace), ``is_success``,
     ``failed_subtask`` and ``failure``.
     """
@@ -127,7 +129,8 @@ class MissionEnv(gym.Env[np.ndarray, np.ndarray]):
         self._record()
         out = {**info, "subtask": k, "stage": self.stage, "is_success": False}
         if info["collision"] or info["violation"]:
-            return self._obs(obs), reward, True, False, self._end(out, k, "collision")
+            failure = "collision" if info["collision"] else "rejected"
+            return self._obs(obs), reward, True, False, self._end(out, k, failure)
         if truncated and not info["is_success"]:
             return self._obs(obs), reward, False, True, self._end(out, k, "timeout")
         if not info["is_success"]:

@@ -174,7 +174,9 @@ class MissionEvaluation:
     collision_rate: float
     timeout_rate: float
     rejected_rate: float
-    """Every goal reached, yet the automaton rejects the labels met on the way."""
+    """The automaton rejects the labels met: in a sub-task that left its automaton stage (filed
+    under it in ``failures``) or, every goal reached, on the whole trace (filed under
+    ``"mission"``)."""
     mean_steps: float | None
     """Mean length of the successful rollouts."""
     failures: dict[str, dict[str, int]] = field(default_factory=dict)

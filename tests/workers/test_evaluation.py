@@ -13,7 +13,7 @@ import numpy as np
 from envs.mission_env import MissionEnv
 from envs.nav_env import NavEnv
 from planner.decompose import lasso_stages
-from planner.plan import MissionPlan
+from planner.plan import MissionPlan, plan_mission
 from workers.evaluation import (
     LaneShare,
     MissionEvaluation,
@@ -134,6 +134,17 @@ def test_mission_failures_are_located_by_subtask_and_kind(
     assert "trails" not in parked.to_json()
     crash = rollout_mission(lambda o: np.array([-1, 0], dtype=np.float32), env, episodes=1)
     assert crash.collision_rate == 1.0 and crash.failures == {"0": {"collision": 1}}
+    env.close()
+
+
+def test_a_sub_task_that_enters_a_forbidden_region_is_rejected_under_its_index() -> None:
+    until = tiny_mission().model_copy(update={"task": "[]!obstacle && (!b U a) && <>b"})
+    world = until.build_world()
+    plan = plan_mission(world, until.task, until.robot.position(), until.robot.radius)
+    env = MissionEnv(until, plan, until.training.eval_env_options(until.robot.model), cycles=1)
+    toward_b = rollout_mission(lambda o: np.array([0, 1], dtype=np.float32), env, episodes=2)
+    assert toward_b.rejected_rate == 1.0 and toward_b.collision_rate == 0.0
+    assert toward_b.failures == {"0": {"rejected": 2}}
     env.close()
 
 
