@@ -87,6 +87,11 @@ class KeepOut:
             out[rows] = np.minimum(out[rows], near)
         return out
 
+    def gap(self, points: np.ndarray, before: Sequence[int], after: Sequence[int]) -> np.ndarray:
+        """(n,) distance of each point to the regions forbidden in either of its two states
+        (the state it is reached in and the one it leaves in)."""
+        return np.minimum(self.distance(points, before), self.distance(points, after))
+
     def closest(self, run: LassoRun) -> float:
         """The least distance of the run's segments (sampled) to a region forbidden there."""
         return min(self._segment_gaps(x, q).min(initial=np.inf) for x, q in _polylines(run))
@@ -114,7 +119,7 @@ class KeepOut:
         per = len(t)
         leave = np.repeat(np.asarray(q[:-1]), per)
         arrive = np.repeat(np.asarray(q[1:]), per)
-        gaps = np.minimum(self.distance(pts, leave.tolist()), self.distance(pts, arrive.tolist()))
+        gaps = self.gap(pts, leave.tolist(), arrive.tolist())
         return np.asarray(gaps.reshape(-1, per).min(axis=1))
 
     def _push(self, x: np.ndarray, q: list[int]) -> tuple[np.ndarray, list[int]]:
@@ -163,7 +168,7 @@ class KeepOut:
         forbidden region; returns whether any moved."""
         before = [q[k - 1] for k in ks]
         here = [q[k] for k in ks]
-        gap = np.minimum(self.distance(x[ks], before), self.distance(x[ks], here))
+        gap = self.gap(x[ks], before, here)
         close = np.flatnonzero(gap < self.margin - _SLACK)
         if close.size == 0:
             return False
@@ -197,9 +202,9 @@ class KeepOut:
         for j in range(p.shape[1]):
             step = np.zeros(p.shape[1])
             step[j] = h
-            up = np.minimum(self.distance(p + step, before), self.distance(p + step, here))
-            down = np.minimum(self.distance(p - step, before), self.distance(p - step, here))
-            grad[:, j] = (up - down) / (2 * h)
+            grad[:, j] = (self.gap(p + step, before, here) - self.gap(p - step, before, here)) / (
+                2 * h
+            )
         norm = np.linalg.norm(grad, axis=1, keepdims=True)
         return np.where(norm > 1e-9, grad / np.where(norm > 0, norm, 1.0), 0.0)
 
