@@ -142,6 +142,7 @@ def make_env(
             mode,
             opts,
             max_steps=opts.max_steps or default_max_steps(legs, bot, opts.time_factor),
+            stall_steps=stall_window(legs, bot, opts),
             starts=real,
             nba=plan.pruned if plan is not None else None,
             render_mode=render_mode,
@@ -312,6 +313,24 @@ def default_max_steps(legs: Sequence[Leg], robot: Robot, time_factor: float) -> 
     """``max(50, ceil(time_factor * L / (v dt)))``: see ``EnvOptions.max_steps``."""
     length = sum(leg.guide.length for leg in legs)
     return max(50, math.ceil(time_factor * length / (nominal_speed(robot) * robot.dt)))
+
+
+STALL_MIN_SECONDS = 3.0
+"""The shortest stall window ``stall_spacings`` gives: the 30 steps of 0.1 s that took the car
+example's U-turn sub-task from 0 to 98 % (``bench/LEARNING.md``), the time a (forward, turn)
+robot needs to turn toward a ball behind it."""
+
+
+def stall_window(legs: Sequence[Leg], robot: Robot, options: EnvOptions) -> int:
+    """Steps without a new r-ball that end an episode (0: never): ``options.stall_steps``, or
+    with ``stall_spacings`` ``s``, ``max(ceil(STALL_MIN_SECONDS / dt), ceil(s 2 r / (v dt)))``
+    with ``r`` the widest ball of ``legs``, ``v`` the robot's top speed and ``dt`` its agent
+    step: at a ``1 / s`` share of its top speed the robot still reaches a ball every window."""
+    if options.stall_spacings is None:
+        return options.stall_steps
+    spacing = 2.0 * max(leg.guide.r for leg in legs)
+    travel = options.stall_spacings * spacing / nominal_speed(robot)
+    return math.ceil(max(STALL_MIN_SECONDS, travel) / robot.dt - 1e-9)
 
 
 def _subtask(subtask: SubTask | int | None, plan: MissionPlan | None) -> SubTask:

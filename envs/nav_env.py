@@ -13,7 +13,8 @@ progress index set to match) and ends when
   ``g2`` before ``g1`` in ``!g2 U g1``): terminated like a crash, ``R-``, ``violation`` True.
   Every reward mode is judged so when the env has the plan's automaton (``make_env`` with
   ``plan=``), as the whole mission is;
-* optionally, no new r-ball was reached for ``stall_steps`` steps (see ``envs.options.EnvOptions``);
+* optionally, no new r-ball was reached for ``stall_steps`` steps (``EnvOptions.stall_steps``
+  or ``stall_spacings``);
 * the step limit is hit: truncated, ``is_success`` False.
 
 The progress index ``i_t`` and ``D_min`` come from ``planner.guidance.ProgressTracker``; the
@@ -97,6 +98,7 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         options: EnvOptions,
         *,
         max_steps: int,
+        stall_steps: int = 0,
         starts: Sequence[Pose],
         nba: Buchi | None = None,
         render_mode: str | None = None,
@@ -146,6 +148,8 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         self.observation_space = self._obs.space
         self.action_space = spaces.Box(-1.0, 1.0, shape=(robot.action_dim,), dtype=np.float32)
         self.max_steps = int(max_steps)
+        self.stall_steps = int(stall_steps)
+        """Steps without a new r-ball that end an episode (0: never; ``envs.factory``)."""
         self._shaping = ActionShaping(robot, options)
         self._leg = first
         self._leg_k = 0
@@ -304,7 +308,7 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         if not terminated:
             if self._t >= self.max_steps:
                 truncated = True
-            stall = self.options.stall_steps
+            stall = self.stall_steps
             if stall and self._since >= stall:
                 stalled = True
                 if self.options.stall_penalty is None:
@@ -376,6 +380,11 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
     def steps(self) -> int:
         """Steps taken in the current episode."""
         return self._t
+
+    @property
+    def steps_without_progress(self) -> int:
+        """Steps since the last new r-ball (what ``stall_steps`` is compared with)."""
+        return self._since
 
     # ------------------------------------------------------------------------------ output
     def render(self) -> np.ndarray | None:

@@ -61,7 +61,13 @@ class EnvOptions:
     heading for the first sub-task); needs the plan. False, or without a plan: the start of
     the sub-task's guide facing along it (the mission's start heading at the mission start)."""
     stall_steps: int = 0
-    """End the episode after this many steps without a new r-ball (0: never)."""
+    """End the episode after this many steps without a new r-ball (0: never, unless
+    ``stall_spacings`` is set)."""
+    stall_spacings: float | None = None
+    """End the episode when no new r-ball is reached in the time the robot needs to cover this
+    many ball spacings (``2 r``) at its top speed, and never sooner than ``STALL_MIN_SECONDS``
+    (``envs.factory.stall_window``): the window follows the world's ball spacing and the
+    robot's speed and agent step. Only without ``stall_steps``. None: no such window."""
     stall_penalty: float | None = None
     """Reward of a stall: None ends a stall as a truncation (value bootstrapped, no penalty);
     a number ends it as a termination with that reward (a failure the critic learns)."""
@@ -139,6 +145,16 @@ class EnvOptions:
             "must be in [0, pi]",
         )
         need(integer("stall_steps") and self.stall_steps >= 0, "stall_steps", "must be >= 0")
+        need(
+            self.stall_spacings is None or (number("stall_spacings") and self.stall_spacings > 0),
+            "stall_spacings",
+            "must be > 0",
+        )
+        need(
+            not (self.stall_steps and self.stall_spacings is not None),
+            "stall_spacings",
+            "set stall_steps or stall_spacings, not both",
+        )
         need(isinstance(self.dense_progress, bool), "dense_progress", "must be true or false")
         need(
             self.stall_penalty is None or number("stall_penalty"), "stall_penalty", "must be finite"

@@ -107,11 +107,15 @@ so the far end of a long guide is trained from the start (evaluations always use
 lidar-like rays in the observation (training and evaluation alike), so that keeping off a box
 is a function of what the robot senses, not of a memorised map."""
 
-STALL_ENV_DEFAULTS: dict[str, Any] = {"stall_steps": 30}
-"""Training defaults of the ``shaped`` protocol: an episode that reaches no new r-ball for 30
-steps ends as a failure with the mode's crash reward (``stall_penalty``), so leaving the guide
-costs what a crash costs and the off-guide wandering never fills the replay buffer.
-Evaluations never stop a stalled episode."""
+STALL_ENV_DEFAULTS: dict[str, Any] = {"stall_spacings": 4.0}
+"""Training defaults of the ``shaped`` protocol: an episode that reaches no new r-ball in the
+time the robot needs to cover 4 ball spacings at its top speed (at least 3 s,
+``envs.factory.stall_window``) ends as a failure with the mode's crash reward
+(``stall_penalty``), so leaving the guide costs what a crash costs and the off-guide wandering
+never fills the replay buffer. The window follows the robot and the world: a fixed 30 steps
+cut the robot's own controller short on wide ball spacings (``bench/stall_window.py``). A
+mission's ``stall_steps`` or ``stall_spacings`` replaces it. Evaluations never stop a stalled
+episode."""
 
 Protocol = Literal["shaped", "paper"]
 """The env every reward mode trains and is evaluated in (``TrainingSpec.protocol``)."""
@@ -343,6 +347,7 @@ class TrainingSpec(BaseModel):
             **self._resolved_env(model),
             "curriculum": 0.0,
             "stall_steps": 0,
+            "stall_spacings": None,
             "start_noise": self.eval_start_noise,
             "heading_noise": self.eval_heading_noise,
         }
@@ -359,7 +364,9 @@ class TrainingSpec(BaseModel):
             defaults.update(HEADING_ENV_DEFAULTS)
         defaults.update(GUIDE_ENV_DEFAULTS.get(model, {}))
         crash = reward_mode(self.reward.mode, self.reward.config()).crash
-        defaults.update(STALL_ENV_DEFAULTS, stall_penalty=crash)
+        defaults["stall_penalty"] = crash
+        if not {"stall_steps", "stall_spacings"} & set(self.env):
+            defaults.update(STALL_ENV_DEFAULTS)
         return {**defaults, **self.env}
 
     def policy_kwargs(self) -> dict[str, Any]:

@@ -275,6 +275,31 @@ def test_stall_ends_the_episode(envs: list[NavEnv], penalty: float | None) -> No
         assert terminated and not truncated and r == penalty
 
 
+def test_stall_window_follows_the_ball_spacing_and_the_robot(envs: list[NavEnv]) -> None:
+    wide = build_env("point", 2, r_ball=2.0, stall_spacings=4.0)
+    narrow = build_env("point", 2, r_ball=0.25, stall_spacings=4.0)
+    slow = build_env("point", 2, r_ball=2.0, stall_spacings=2.0)
+    quad = build_env("quadrotor", 3, r_ball=0.25, stall_spacings=4.0)
+    fixed = build_env("point", 2, r_ball=2.0, stall_steps=7)
+    envs.extend([wide, narrow, slow, quad, fixed])
+    assert wide.stall_steps == 160  # 4 spacings of 4 m at 1 m/s, steps of 0.1 s
+    assert slow.stall_steps == 80
+    assert narrow.stall_steps == 30  # 2 m take 2 s: the 3 s floor
+    assert quad.stall_steps == 60  # the floor in the quadrotor's 0.05 s steps
+    assert fixed.stall_steps == 7
+    wide.reset(seed=0)
+    steps = drive_straight(wide, np.zeros(2), 400)
+    assert len(steps) == 160 and steps[-1][3]["stalled"]
+    assert wide.steps_without_progress == 160
+
+
+def test_stall_is_set_once() -> None:
+    with pytest.raises(EnvConfigError, match=r"stall_spacings.*not both"):
+        EnvOptions(stall_steps=30, stall_spacings=4.0)
+    with pytest.raises(EnvConfigError, match=r"stall_spacings.*> 0"):
+        EnvOptions(stall_spacings=0.0)
+
+
 def test_curriculum_starts_at_a_ball_with_the_matching_index(envs: list[NavEnv]) -> None:
     env = build_env("unicycle", 2, curriculum=1.0)
     envs.append(env)

@@ -202,6 +202,7 @@ def test_evaluation_options_start_at_the_real_start_with_noise() -> None:
     spec = tiny_mission(env={"curriculum": 0.7, "stall_steps": 30}, eval_start_noise=0.1)
     options = spec.training.eval_env_options(spec.robot.model)
     assert (options.curriculum, options.stall_steps, options.start_noise) == (0.0, 0, 0.1)
+    assert options.stall_spacings is None
     assert options.heading_noise == 0.4
     assert spec.training.env_options(spec.robot.model).curriculum == 0.7
 
@@ -209,16 +210,18 @@ def test_evaluation_options_start_at_the_real_start_with_noise() -> None:
 def test_every_mode_ends_a_stall_with_its_crash_reward_and_sees_rays() -> None:
     ours = tiny_mission().training
     trained, evaluated = ours.env_options("point"), ours.eval_env_options("point")
-    assert (trained.stall_steps, trained.stall_penalty, trained.rays) == (30, -10.0, 16)
-    assert (evaluated.stall_steps, evaluated.rays) == (0, 16)  # never cut short; same inputs
+    assert (trained.stall_spacings, trained.stall_penalty, trained.rays) == (4.0, -10.0, 16)
+    assert (evaluated.stall_steps, evaluated.stall_spacings, evaluated.rays) == (0, None, 16)
     harsher = tiny_mission(reward={"constants": {"crash": -5.0}}).training
     assert harsher.env_options("point").stall_penalty == -5.0
     crashes = {"rrt-paper": -100.0, "ned": -10.0, "tl": -10.0}
     for mode, crash in crashes.items():  # the shaped protocol: only the reward differs
         other = tiny_mission(reward={"mode": mode}).training.env_options("point")
-        assert (other.stall_steps, other.stall_penalty, other.rays) == (30, crash, 16)
+        assert (other.stall_spacings, other.stall_penalty, other.rays) == (4.0, crash, 16)
     chosen = tiny_mission(env={"stall_steps": 0, "rays": 0}).training.env_options("point")
-    assert (chosen.stall_steps, chosen.rays) == (0, 0)
+    assert (chosen.stall_steps, chosen.stall_spacings, chosen.rays) == (0, None, 0)
+    steps = tiny_mission(env={"stall_steps": 30}).training.env_options("point")
+    assert (steps.stall_steps, steps.stall_spacings) == (30, None)
 
 
 def test_measured_training_defaults_apply_by_robot_and_yield_to_the_mission() -> None:
@@ -259,6 +262,7 @@ def test_the_paper_protocol_is_the_published_env_for_every_mode() -> None:
             for options in (trained, evaluated):
                 assert (options.observation, options.rays, options.curriculum) == ("paper", 0, 0)
                 assert (options.stall_steps, options.min_forward) == (0, None)
+                assert options.stall_spacings is None
                 assert (options.guide_feedforward, options.drivable_guide) == (None, None)
                 assert options.goal_judge == "guide_end"
     chosen = tiny_mission(protocol="paper", env={"rays": 8}).training.env_options("point")
