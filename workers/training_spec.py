@@ -267,9 +267,10 @@ class TrainingSpec(BaseModel):
     eval_start_noise: float = Field(
         0.2,
         ge=0,
-        description="Start perturbation (m) of every evaluation episode and mission rollout: "
-        "the dynamics and a deterministic policy are otherwise noise free, so N identical "
-        "trials would measure one trajectory.",
+        description="Start perturbation (m) of every evaluation episode and mission rollout, "
+        "and of training starts unless training.env sets start_noise: the dynamics and a "
+        "deterministic policy are otherwise noise free, so N identical trials would measure "
+        "one trajectory.",
     )
     eval_heading_noise: float = Field(
         0.4, ge=0, le=3.141592653589793, description="Start heading perturbation (rad), likewise."
@@ -356,10 +357,13 @@ class TrainingSpec(BaseModel):
     def _resolved_env(self, model: str) -> dict[str, Any]:
         """``env`` over the protocol's defaults for a ``model`` robot: ``paper`` takes
         ``PAPER_ENV``; ``shaped`` the measured training defaults, the same for every reward
-        mode (only the reward differs)."""
+        mode (only the reward differs). Either way training starts are spread like the
+        evaluation's (``eval_start_noise``, ``eval_heading_noise``), so a policy is reported on
+        the start distribution it was trained on."""
+        spread = {"start_noise": self.eval_start_noise, "heading_noise": self.eval_heading_noise}
         if self.protocol == "paper":
-            return {**PAPER_ENV, **self.env}
-        defaults = dict(TRAINING_ENV_DEFAULTS)
+            return {**spread, **PAPER_ENV, **self.env}
+        defaults = {**spread, **TRAINING_ENV_DEFAULTS}
         if model in HEADING_FEATURES:
             defaults.update(HEADING_ENV_DEFAULTS)
         defaults.update(GUIDE_ENV_DEFAULTS.get(model, {}))

@@ -207,6 +207,23 @@ def test_evaluation_options_start_at_the_real_start_with_noise() -> None:
     assert spec.training.env_options(spec.robot.model).curriculum == 0.7
 
 
+def test_training_starts_are_spread_like_the_evaluation_s() -> None:
+    for protocol in ("shaped", "paper"):
+        training = tiny_mission(eval_start_noise=0.3, protocol=protocol).training
+        for model in ("point", "racecar"):
+            trained, evaluated = training.env_options(model), training.eval_env_options(model)
+            assert (trained.start_noise, trained.heading_noise) == (0.3, 0.4)
+            assert (evaluated.start_noise, evaluated.heading_noise) == (0.3, 0.4)
+    exact = tiny_mission(env={"start_noise": 0.0}, eval_start_noise=0.3).training
+    assert (
+        exact.env_options("point").start_noise,
+        exact.eval_env_options("point").start_noise,
+    ) == (
+        0.0,
+        0.3,
+    )
+
+
 def test_every_mode_ends_a_stall_with_its_crash_reward_and_sees_rays() -> None:
     ours = tiny_mission().training
     trained, evaluated = ours.env_options("point"), ours.eval_env_options("point")
