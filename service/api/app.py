@@ -18,6 +18,7 @@ from service.api.admission import install_replay
 from service.api.body_limit import BodyLimit
 from service.api.deps import Enqueue, Services
 from service.api.errors import install_handlers
+from service.api.fast_read import FastMissionRead
 from service.api.server_timing import ServerTiming
 from service.db import Database
 from service.settings import Settings, get_settings
@@ -101,6 +102,7 @@ def create_app(settings: Settings | None = None, enqueue: Enqueue | None = None)
         lifespan=lifespan,
     )
     app.state.services = services
+    app.add_middleware(FastMissionRead)
     app.add_middleware(BodyLimit, max_body_bytes=settings.max_body_bytes)
     app.add_middleware(ServerTiming)
     install_handlers(app)

@@ -67,7 +67,8 @@ bearer = HTTPBearer(
 )
 
 
-def _matching_key(token: str, keys: list[str]) -> str | None:
+def matching_key(token: str, keys: list[str]) -> str | None:
+    """The key of ``keys`` that ``token`` is, or None."""
     # Compare with every key, in constant time, so the timing does not tell which one matched.
     found = None
     for key in keys:
@@ -91,7 +92,7 @@ async def caller(
             "an API key is required: send 'Authorization: Bearer <key>'",
             headers={"WWW-Authenticate": "Bearer"},
         )
-    key = _matching_key(credentials.credentials, keys)
+    key = matching_key(credentials.credentials, keys)
     if key is None:
         raise HTTPException(
             status.HTTP_401_UNAUTHORIZED,

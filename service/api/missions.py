@@ -135,11 +135,12 @@ async def get_mission(mission_id: MissionId, api_key: Caller, deps: ServicesDep)
     # The read clients poll: one hop to the thread pool (the session, the query and the
     # view together) and no second validation of the view, rather than one hop per
     # dependency.
-    body = await run_in_threadpool(_mission_json, deps.database, mission_id, api_key)
+    body = await run_in_threadpool(mission_json, deps.database, mission_id, api_key)
     return Response(body, media_type="application/json")
 
 
-def _mission_json(database: Database, mission_id: str, api_key: str | None) -> bytes:
+def mission_json(database: Database, mission_id: str, api_key: str | None) -> bytes:
+    """The body of ``GET /missions/{mission_id}`` for ``api_key`` (404 as ``HTTPException``)."""
     with database.session() as session:
         view = mission_view(owned_mission(mission_id, session, api_key))
     return view.model_dump_json(by_alias=True).encode()

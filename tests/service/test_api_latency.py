@@ -9,7 +9,9 @@ import asyncio
 import os
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 from fastapi.testclient import TestClient
@@ -147,3 +149,45 @@ def test_reading_a_mission_takes_one_hop_to_the_thread_pool(
     assert read.json() == expected and read.json()["links"]["self"] == f"/missions/{mission_id}"
     assert other_key.status_code == 404 and malformed.status_code == 404
     assert other_key.json()["detail"] == f"no mission {mission_id!r}"
+
+
+def test_the_polled_read_is_served_before_the_router_and_every_other_case_by_it(
+    sqlite_url: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from service.api import fast_read, missions
+
+    upgrade(sqlite_url)
+    database = Database(sqlite_url)
+    settings = settings_for(tmp_path, sqlite_url, keys=["alpha", "beta"])
+    served: list[str] = []
+
+    def spy(where: str, read: Callable[..., bytes], fail: bool = False) -> Callable[..., bytes]:
+        def call(*args: Any) -> bytes:
+            served.append(where)
+            if fail and served.count(where) == 1:
+                raise OSError("the database went away")
+            return read(*args)
+
+        return call
+
+    with TestClient(create_app(settings, RecordingEnqueue(database))) as http:
+        alpha, beta = {"Authorization": "Bearer alpha"}, {"Authorization": "Bearer beta"}
+        mission_id = http.post("/missions", json=tiny(), headers=alpha).json()["id"]
+        monkeypatch.setattr(fast_read, "mission_json", spy("fast", missions.mission_json))
+        monkeypatch.setattr(missions, "mission_json", spy("route", missions.mission_json))
+        read = http.get(f"/missions/{mission_id.upper()}", headers=alpha)
+        assert (read.status_code, served) == (200, ["fast"])
+        assert read.headers["server-timing"].startswith("app;dur=")
+        assert read.content == missions.mission_json(database, mission_id, "alpha")
+        served.clear()
+        assert http.get(f"/missions/{mission_id}", headers=beta).status_code == 404
+        assert served == ["fast", "route"]  # another key's mission: the route answers
+        served.clear()
+        for headers in ({}, {"Authorization": "Bearer gamma"}, {"Authorization": "Basic alpha"}):
+            assert http.get(f"/missions/{mission_id}", headers=headers).status_code == 401
+        assert http.get("/missions/not-an-id", headers=alpha).status_code == 404
+        assert served == ["route"]  # only the malformed id reached a read, the route's
+        served.clear()
+        monkeypatch.setattr(fast_read, "mission_json", spy("fast", missions.mission_json, True))
+        again = http.get(f"/missions/{mission_id}", headers=alpha)
+        assert (again.status_code, served) == (200, ["fast", "route"])  # a failure: the app
