@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from service.api.app import create_app
@@ -112,6 +113,14 @@ def test_a_worker_lowers_its_own_priority() -> None:
     assert _run_python(code) == expected
 
 
+def _keyed_app(sqlite_url: str, tmp_path: Path) -> tuple[Database, FastAPI]:
+    """A migrated SQLite database and the API on it with the keys alpha and beta."""
+    upgrade(sqlite_url)
+    database = Database(sqlite_url)
+    settings = settings_for(tmp_path, sqlite_url, keys=["alpha", "beta"])
+    return database, create_app(settings, RecordingEnqueue(database))
+
+
 def test_reading_a_mission_takes_one_hop_to_the_thread_pool(
     sqlite_url: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -122,9 +131,7 @@ def test_reading_a_mission_takes_one_hop_to_the_thread_pool(
     from service.api.views import mission_view
     from service.repository import get_mission
 
-    upgrade(sqlite_url)
-    database = Database(sqlite_url)
-    settings = settings_for(tmp_path, sqlite_url, keys=["alpha", "beta"])
+    database, app = _keyed_app(sqlite_url, tmp_path)
     hops: list[str] = []
     run_sync = anyio.to_thread.run_sync
 
@@ -132,7 +139,7 @@ def test_reading_a_mission_takes_one_hop_to_the_thread_pool(
         hops.append(getattr(function, "__name__", repr(function)))
         return await run_sync(function, *args, **kwargs)
 
-    with TestClient(create_app(settings, RecordingEnqueue(database))) as http:
+    with TestClient(app) as http:
         alpha = {"Authorization": "Bearer alpha"}
         mission_id = http.post("/missions", json=tiny(), headers=alpha).json()["id"]
         monkeypatch.setattr(anyio.to_thread, "run_sync", counted)
@@ -156,9 +163,7 @@ def test_the_polled_read_is_served_before_the_router_and_every_other_case_by_it(
 ) -> None:
     from service.api import fast_read, missions
 
-    upgrade(sqlite_url)
-    database = Database(sqlite_url)
-    settings = settings_for(tmp_path, sqlite_url, keys=["alpha", "beta"])
+    database, app = _keyed_app(sqlite_url, tmp_path)
     served: list[str] = []
 
     def spy(where: str, read: Callable[..., bytes], fail: bool = False) -> Callable[..., bytes]:
@@ -170,7 +175,7 @@ def test_the_polled_read_is_served_before_the_router_and_every_other_case_by_it(
 
         return call
 
-    with TestClient(create_app(settings, RecordingEnqueue(database))) as http:
+    with TestClient(app) as http:
         alpha, beta = {"Authorization": "Bearer alpha"}, {"Authorization": "Bearer beta"}
         mission_id = http.post("/missions", json=tiny(), headers=alpha).json()["id"]
         monkeypatch.setattr(fast_read, "mission_json", spy("fast", missions.mission_json))
