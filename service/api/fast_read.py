@@ -12,7 +12,9 @@ to the app unchanged, which answers it as before.
 
 from __future__ import annotations
 
+from fastapi.security.utils import get_authorization_scheme_param
 from starlette.concurrency import run_in_threadpool
+from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from service.api.deps import MISSION_ID, Services, matching_key
@@ -64,9 +66,7 @@ class FastMissionRead:
 
 
 def _bearer_token(scope: Scope) -> str:
-    """The token of the request's ``Authorization: Bearer`` header ('' when none)."""
-    for name, value in scope["headers"]:
-        if name == b"authorization":
-            scheme, _, token = value.decode("latin-1").partition(" ")
-            return token.strip() if scheme.lower() == "bearer" else ""
-    return ""
+    """The token of the request's ``Authorization: Bearer`` header ('' when none), read as
+    ``deps.bearer`` (FastAPI's ``HTTPBearer``) reads it."""
+    scheme, token = get_authorization_scheme_param(Headers(scope=scope).get("authorization"))
+    return token if scheme.lower() == "bearer" else ""
