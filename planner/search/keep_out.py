@@ -40,14 +40,6 @@ def forbidden_regions(
     """Per automaton state, the regions among ``names`` whose entry kills every run there: each
     cube of each guard leaving the state forbids the region, or cannot hold in the world
     together with it. States that forbid nothing are left out."""
-    verdict: dict[tuple[frozenset[str], frozenset[str]], bool] = {}
-
-    def realisable(pos: frozenset[str], neg: frozenset[str]) -> bool:
-        key = (pos, neg)
-        if key not in verdict:
-            verdict[key] = world.realisable(pos, neg, clearance)
-        return verdict[key]
-
     cubes: dict[int, list[tuple[frozenset[str], frozenset[str]]]] = {}
     for edge in nba.edges:
         for cube in edge.guard.sorted_cubes():
@@ -57,7 +49,9 @@ def forbidden_regions(
         banned = tuple(
             r
             for r in names
-            if all(r in neg or not realisable(pos | {r}, neg) for pos, neg in leaving)
+            if all(
+                r in neg or not world.realisable(pos | {r}, neg, clearance) for pos, neg in leaving
+            )
         )
         if banned:
             out[q] = banned
