@@ -176,15 +176,16 @@ def model_card(manifest: Manifest) -> str:
         "`workers.bundle.ConcatenatedPolicy.load('bundle.zip')`; each `models/*.zip` is a plain",
         "stable-baselines3 archive.",
         "",
-        "| sub-task | phase | goal | steps | stopped | success | collisions | mean steps |",
-        "|---|---|---|---|---|---|---|---|",
+        "| sub-task | phase | goal | steps | stopped | success | collisions | rejected "
+        "| mean steps |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for s in manifest.subtasks:
         ev: dict[str, Any] = s.evaluation or {}
         lines.append(
             f"| {s.index} | {s.phase} | {s.goal or '(end of guide)'} | {_steps(s)} | {s.stopped} | "
             f"{_pct(ev.get('success_rate'))} | {_pct(ev.get('collision_rate'))} | "
-            f"{ev.get('mean_steps_to_goal') or '-'} |"
+            f"{_pct(ev.get('rejected_rate'))} | {ev.get('mean_steps_to_goal') or '-'} |"
         )
     whole = manifest.mission_evaluation
     lines.append("")
@@ -192,7 +193,8 @@ def model_card(manifest: Manifest) -> str:
         lines.append(
             f"Whole mission ({whole['episodes']} rollouts, {whole['cycles']} suffix cycles, "
             f"judged by the Büchi automaton): success {_pct(whole['success_rate'])}, collisions "
-            f"{_pct(whole['collision_rate'])}, timeouts {_pct(whole['timeout_rate'])}; failures "
+            f"{_pct(whole['collision_rate'])}, timeouts {_pct(whole['timeout_rate'])}, rejected "
+            f"{_pct(whole['rejected_rate'])}; failures "
             f"by sub-task: {json.dumps(whole['failures'])}."
         )
     else:

@@ -35,6 +35,9 @@ class SubtaskEvaluation:
     timeout_rate: float
     mean_steps_to_goal: float | None
     """Mean episode length of the successful episodes (None: no success)."""
+    rejected_rate: float = 0.0
+    """Episodes that left the sub-task's automaton stage (entered a region the task forbids
+    there); 0 in records written before it was counted apart from collisions."""
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -136,7 +139,7 @@ def run_lanes(
 def evaluate_subtask(act: Act, envs: Lanes, episodes: int, seed: int) -> SubtaskEvaluation:
     """Run ``act`` for ``episodes`` episodes of one sub-task env, or of its lanes
     (``run_lanes``)."""
-    outcomes = {"success": 0, "collision": 0, "timeout": 0}
+    outcomes = {"success": 0, "collision": 0, "timeout": 0, "rejected": 0}
     goal_steps: list[int] = []
 
     def ended(_env: gym.Env[Any, Any], info: dict[str, Any], steps: int) -> None:
@@ -152,6 +155,7 @@ def evaluate_subtask(act: Act, envs: Lanes, episodes: int, seed: int) -> Subtask
         collision_rate=outcomes["collision"] / episodes,
         timeout_rate=outcomes["timeout"] / episodes,
         mean_steps_to_goal=float(np.mean(goal_steps)) if goal_steps else None,
+        rejected_rate=outcomes["rejected"] / episodes,
     )
 
 
@@ -159,8 +163,10 @@ def _outcome(info: dict[str, Any]) -> str:
     """How a sub-task episode ended, from its last step's info."""
     if info.get("is_success"):
         return "success"
-    if info.get("collision") or info.get("violation"):
+    if info.get("collision"):
         return "collision"
+    if info.get("violation"):
+        return "rejected"
     return "timeout"
 
 

@@ -278,12 +278,13 @@ function jobsTable(jobs) {
       j.status === "running" ? duration(j.eta_seconds) : "–", j.attempts,
       j.final ? f.episodes : "–", j.final ? pct(f.success_rate) : "–",
       j.final ? pct(f.collision_rate) : "–", j.final ? pct(f.timeout_rate) : "–",
-      j.final ? num(f.mean_steps_to_goal, 1) : "–", j.reason || ""];
+      j.final ? pct(f.rejected_rate) : "–", j.final ? num(f.mean_steps_to_goal, 1) : "–",
+      j.reason || ""];
   });
   return h("div", { id: "jobs" }, table(
     ["sub-task", "status", "steps", "latest success", "ETA", "attempts", "eval episodes",
-      "success", "collisions", "timeouts", "steps to goal", "reason"],
-    rows, [0, 2, 3, 4, 5, 6, 7, 8, 9, 10]));
+      "success", "collisions", "timeouts", "rejected", "steps to goal", "reason"],
+    rows, [0, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11]));
 }
 
 function repairsTable(repairs, rounds) {

@@ -63,6 +63,7 @@ def test_subtask_evaluation_counts_successes_collisions_and_timeouts(
     # the robot starts 0.5 m from the left wall of the world: push straight into it
     crash = evaluate_subtask(lambda o: np.array([-1, 0], dtype=np.float32), env, episodes=2, seed=0)
     assert crash.collision_rate == 1.0 and crash.success_rate == 0.0
+    assert crash.rejected_rate == 0.0
     env.close()
 
 
@@ -145,6 +146,19 @@ def test_a_sub_task_that_enters_a_forbidden_region_is_rejected_under_its_index()
     toward_b = rollout_mission(lambda o: np.array([0, 1], dtype=np.float32), env, episodes=2)
     assert toward_b.rejected_rate == 1.0 and toward_b.collision_rate == 0.0
     assert toward_b.failures == {"0": {"rejected": 2}}
+    env.close()
+
+
+def test_a_sub_task_episode_that_enters_a_forbidden_region_is_rejected_not_a_collision() -> None:
+    from workers.training import subtask_env
+
+    until = tiny_mission().model_copy(update={"task": "[]!obstacle && (!b U a) && <>b"})
+    world = until.build_world()
+    plan = plan_mission(world, until.task, until.robot.position(), until.robot.radius)
+    env = subtask_env(until, plan, until.training, 0, evaluation=True)
+    toward_b = evaluate_subtask(lambda o: np.array([0, 1], dtype=np.float32), env, 2, seed=0)
+    assert (toward_b.rejected_rate, toward_b.collision_rate, toward_b.success_rate) == (1, 0, 0)
+    assert toward_b.to_json()["rejected_rate"] == 1.0
     env.close()
 
 
