@@ -241,18 +241,19 @@ def test_training_starts_are_spread_like_the_evaluation_s() -> None:
 def test_every_mode_ends_a_stall_with_its_crash_reward_and_sees_rays() -> None:
     ours = tiny_mission().training
     trained, evaluated = ours.env_options("point"), ours.eval_env_options("point")
-    assert (trained.stall_spacings, trained.stall_penalty, trained.rays) == (4.0, -10.0, 16)
+    assert (trained.stall_steps, trained.stall_penalty, trained.rays) == (30, -10.0, 16)
+    assert trained.stall_spacings is None
     assert (evaluated.stall_steps, evaluated.stall_spacings, evaluated.rays) == (0, None, 16)
     harsher = tiny_mission(reward={"constants": {"crash": -5.0}}).training
     assert harsher.env_options("point").stall_penalty == -5.0
     crashes = {"rrt-paper": -100.0, "ned": -10.0, "tl": -10.0}
     for mode, crash in crashes.items():  # the shaped protocol: only the reward differs
         other = tiny_mission(reward={"mode": mode}).training.env_options("point")
-        assert (other.stall_spacings, other.stall_penalty, other.rays) == (4.0, crash, 16)
+        assert (other.stall_steps, other.stall_penalty, other.rays) == (30, crash, 16)
     chosen = tiny_mission(env={"stall_steps": 0, "rays": 0}).training.env_options("point")
     assert (chosen.stall_steps, chosen.stall_spacings, chosen.rays) == (0, None, 0)
-    steps = tiny_mission(env={"stall_steps": 30}).training.env_options("point")
-    assert (steps.stall_steps, steps.stall_spacings) == (30, None)
+    spacings = tiny_mission(env={"stall_spacings": 4.0}).training.env_options("point")
+    assert (spacings.stall_steps, spacings.stall_spacings) == (0, 4.0)
 
 
 def test_measured_training_defaults_apply_by_robot_and_yield_to_the_mission() -> None:
