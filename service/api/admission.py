@@ -17,7 +17,7 @@ from fastapi import Depends, FastAPI, Header, HTTPException, Request, status
 from fastapi.responses import JSONResponse
 
 from service import repository as repo
-from service.api.deps import Caller, ServicesDep, SessionDep
+from service.api.deps import Caller, ServicesDep, SessionDep, SubmissionSlot
 from service.api.schemas import Submitted
 from service.api.views import mission_links
 from service.models import MissionStatus, utcnow
@@ -122,12 +122,15 @@ def quota_refusal(
 
 def admit(
     api_key: Caller,
+    _slot: SubmissionSlot,
     session: SessionDep,
     deps: ServicesDep,
     idempotency_key: IdempotencyKey = None,
 ) -> str | None:
     """The request's ``Idempotency-Key`` once the submission may go on: a repeated key raises
-    ``ReplayedError`` (200, its first mission), a key over a quota 429."""
+    ``ReplayedError`` (200, its first mission), a key over a quota 429. The submission slot is
+    taken first: a submission waiting for one holds no database connection, which the reads
+    served meanwhile would otherwise wait for."""
     if idempotency_key is not None:
         since = idempotency_since(deps.settings)
         earlier = repo.find_by_idempotency_key(session, api_key, idempotency_key, since)

@@ -9,7 +9,8 @@ import asyncio
 import os
 import subprocess
 import sys
-from collections.abc import Callable
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Any
 
@@ -87,6 +88,39 @@ def test_submissions_are_validated_one_at_a_time_by_default(tmp_path: Path) -> N
 
 def test_the_gate_lets_as_many_in_as_it_has_slots() -> None:
     assert _most_inside_at_once(SubmissionGate(slots=3), 10) == 3
+
+
+def test_a_submission_waits_for_its_slot_before_it_takes_a_database_connection(
+    sqlite_url: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Submissions queued at the gate must leave the connection pool to the reads.
+    from sqlalchemy import event
+    from sqlalchemy.pool import Pool
+
+    upgrade(sqlite_url)
+    database = Database(sqlite_url)
+    settings = settings_for(tmp_path, sqlite_url)
+    seen: list[str] = []
+    slot = SubmissionGate.slot
+
+    @asynccontextmanager
+    async def recorded(gate: SubmissionGate) -> AsyncIterator[None]:
+        seen.append("slot")
+        async with slot(gate):
+            yield
+
+    def checkout(*_: Any) -> None:
+        seen.append("connection")
+
+    monkeypatch.setattr(SubmissionGate, "slot", recorded)
+    event.listen(Pool, "checkout", checkout)
+    try:
+        with TestClient(create_app(settings, RecordingEnqueue(database))) as http:
+            seen.clear()
+            assert http.post("/missions", json=tiny()).status_code == 201
+    finally:
+        event.remove(Pool, "checkout", checkout)
+    assert seen[:2] == ["slot", "connection"], seen
 
 
 def test_every_response_says_how_long_the_api_took(sqlite_url: str, tmp_path: Path) -> None:
