@@ -138,10 +138,15 @@ def test_mission_failures_are_located_by_subtask_and_kind(
     env.close()
 
 
-def test_a_sub_task_that_enters_a_forbidden_region_is_rejected_under_its_index() -> None:
+def _until_b_forbidden() -> tuple[MissionSpec, MissionPlan]:
+    """The tiny mission with ``b`` forbidden until ``a`` is reached, and its plan."""
     until = tiny_mission().model_copy(update={"task": "[]!obstacle && (!b U a) && <>b"})
     world = until.build_world()
-    plan = plan_mission(world, until.task, until.robot.position(), until.robot.radius)
+    return until, plan_mission(world, until.task, until.robot.position(), until.robot.radius)
+
+
+def test_a_sub_task_that_enters_a_forbidden_region_is_rejected_under_its_index() -> None:
+    until, plan = _until_b_forbidden()
     env = MissionEnv(until, plan, until.training.eval_env_options(until.robot.model), cycles=1)
     toward_b = rollout_mission(lambda o: np.array([0, 1], dtype=np.float32), env, episodes=2)
     assert toward_b.rejected_rate == 1.0 and toward_b.collision_rate == 0.0
@@ -152,9 +157,7 @@ def test_a_sub_task_that_enters_a_forbidden_region_is_rejected_under_its_index()
 def test_a_sub_task_episode_that_enters_a_forbidden_region_is_rejected_not_a_collision() -> None:
     from workers.training import subtask_env
 
-    until = tiny_mission().model_copy(update={"task": "[]!obstacle && (!b U a) && <>b"})
-    world = until.build_world()
-    plan = plan_mission(world, until.task, until.robot.position(), until.robot.radius)
+    until, plan = _until_b_forbidden()
     env = subtask_env(until, plan, until.training, 0, evaluation=True)
     toward_b = evaluate_subtask(lambda o: np.array([0, 1], dtype=np.float32), env, 2, seed=0)
     assert (toward_b.rejected_rate, toward_b.collision_rate, toward_b.success_rate) == (1, 0, 0)
