@@ -30,6 +30,9 @@ FIRST_PROBE_WAIT = 10.0
 """How long a health check waits for the first probe after start-up before answering
 ``unknown``."""
 
+PROBE_THREAD = "ltlnav-health"
+"""The name of the thread that refreshes the probe (``HealthMonitor.start``)."""
+
 
 def database_state(database: Database) -> tuple[ComponentState, str | None]:
     """Whether ``SELECT 1`` works."""
@@ -140,7 +143,7 @@ class HealthMonitor:
         if self._thread is not None and self._thread.is_alive():
             return
         self._stop.clear()
-        self._thread = threading.Thread(target=self._run, daemon=True, name="ltlnav-health")
+        self._thread = threading.Thread(target=self._run, daemon=True, name=PROBE_THREAD)
         self._thread.start()
 
     def _run(self) -> None:

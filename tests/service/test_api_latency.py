@@ -98,6 +98,8 @@ def test_a_submission_waits_for_its_slot_before_it_takes_a_database_connection(
 
     from sqlalchemy import event
 
+    from service.api.health import PROBE_THREAD
+
     upgrade(sqlite_url)
     database = Database(sqlite_url)
     app = create_app(settings_for(tmp_path, sqlite_url), RecordingEnqueue(database))
@@ -112,7 +114,7 @@ def test_a_submission_waits_for_its_slot_before_it_takes_a_database_connection(
             yield
 
     def checkout(*_: Any) -> None:
-        if threading.current_thread().name != "ltlnav-health":  # the app's own health probe
+        if threading.current_thread().name != PROBE_THREAD:
             seen.append("connection")
 
     monkeypatch.setattr(SubmissionGate, "slot", recorded)
