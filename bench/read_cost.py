@@ -30,7 +30,13 @@ import httpx
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from bench.service import EXAMPLE, Layout, api_server, bench_mission  # noqa: E402
+from bench.service import (  # noqa: E402
+    EXAMPLE,
+    Layout,
+    api_server,
+    bench_mission,
+    stop_on_sigterm,
+)
 from bench.service_load import cpu_seconds, server_seconds  # noqa: E402
 
 MISSIONS = 20
@@ -102,6 +108,7 @@ def quantile(samples: list[float], q: float) -> float:
 
 
 def main() -> None:
+    stop_on_sigterm()
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--code", type=Path, nargs="+", required=True, help="code trees")
     parser.add_argument("--rounds", type=int, default=2, help="servers per tree, alternating")

@@ -120,6 +120,16 @@ class Layout:
         return env
 
 
+def stop_on_sigterm() -> None:
+    """Let SIGTERM end a bench as Ctrl-C does: the ``KeyboardInterrupt`` unwinds every
+    ``process`` context, which stops its servers and workers, and removes the temporary data."""
+
+    def raise_interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    signal.signal(signal.SIGTERM, raise_interrupt)
+
+
 _interrupted: set[int] = set()
 """Processes ``interrupt`` already sent SIGINT (``process`` then only waits for them)."""
 
@@ -432,6 +442,7 @@ def machine_note() -> str:
 
 
 def main() -> None:
+    stop_on_sigterm()
     if "--load" in sys.argv[1:]:
         # The load mode lives in bench/service_load.py (its own options, see --load --help).
         from bench.service_load import main as load_main

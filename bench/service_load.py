@@ -65,6 +65,7 @@ from bench.service import (  # noqa: E402
     machine_note,
     phase_layout,
     start_worker,
+    stop_on_sigterm,
     wait_ready,
 )
 
@@ -631,6 +632,7 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> list[LoadResult]:
+    stop_on_sigterm()
     args = parser().parse_args(argv)
     backends = args.backends or (
         ["embedded", "servers"] if args.redis and args.postgres else ["embedded"]
