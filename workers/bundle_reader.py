@@ -38,6 +38,7 @@ from planner.decompose import subtask_at
 from planner.plan import MissionPlan
 from planner.serialize import plan_from_dict
 from workers.evaluation import MissionEvaluation, rollout_mission
+from workers.hyperparameters import ACTIVATIONS
 from workers.manifest import (
     FORMAT,
     MANIFEST,
@@ -48,7 +49,6 @@ from workers.manifest import (
 )
 from workers.mission import MissionError, MissionSpec, parse_mission
 from workers.policy_act import deterministic_act
-from workers.training_spec import ACTIVATIONS
 
 MODEL_NAME = re.compile(r"models/subtask_[0-9]{1,4}\.zip")
 MODEL_MEMBERS = re.compile(r"data|_stable_baselines3_version|system_info\.txt|[A-Za-z0-9_.]+\.pth")

@@ -28,77 +28,14 @@ from envs.observation import HEADING_FEATURES
 from envs.options import EnvOptions
 from envs.rewards import REWARD_MODES, RewardConfig, reward_mode
 from planner.geometry.shape_spec import raise_problems
+from workers.hyperparameters import (
+    DEFAULT_POLICY_KWARGS,
+    HYPERPARAMETERS,
+    policy_kwargs_problems,
+)
 
 Algorithm = Literal["sac", "td3", "ddpg", "ppo"]
 RewardModeName = Literal["rrt", "rrt-paper", "g-rrt", "ned", "tl"]
-
-_OFF_POLICY = frozenset(
-    {
-        "learning_rate",
-        "buffer_size",
-        "learning_starts",
-        "batch_size",
-        "tau",
-        "gamma",
-        "train_freq",
-        "gradient_steps",
-        "optimize_memory_usage",
-        "policy_kwargs",
-        "noise_type",
-        "noise_std",
-    }
-)
-HYPERPARAMETERS: dict[str, frozenset[str]] = {
-    "sac": _OFF_POLICY
-    | {
-        "ent_coef",
-        "target_update_interval",
-        "target_entropy",
-        "use_sde",
-        "sde_sample_freq",
-        "use_sde_at_warmup",
-    },
-    "td3": _OFF_POLICY | {"policy_delay", "target_policy_noise", "target_noise_clip"},
-    "ddpg": _OFF_POLICY,
-    "ppo": frozenset(
-        {
-            "learning_rate",
-            "n_steps",
-            "batch_size",
-            "n_epochs",
-            "gamma",
-            "gae_lambda",
-            "clip_range",
-            "clip_range_vf",
-            "normalize_advantage",
-            "ent_coef",
-            "vf_coef",
-            "max_grad_norm",
-            "use_sde",
-            "sde_sample_freq",
-            "target_kl",
-            "policy_kwargs",
-        }
-    ),
-}
-"""Valid hyperparameter names per algorithm (RL-Zoo spelling; ``noise_type``/``noise_std``
-build the off-policy action noise, ``normal`` or ``ornstein-uhlenbeck``)."""
-
-POLICY_KWARGS = frozenset(
-    {"net_arch", "activation_fn", "log_std_init", "n_critics", "share_features_extractor"}
-)
-"""Valid keys of ``hyperparams.policy_kwargs``; ``activation_fn`` is a name (``ACTIVATIONS``)."""
-
-ACTIVATIONS = ("relu", "tanh", "elu", "leaky_relu", "gelu", "silu")
-"""Activation names accepted for ``policy_kwargs.activation_fn`` (``torch.nn`` modules)."""
-
-DEFAULT_POLICY_KWARGS: dict[str, Any] = {"net_arch": [64, 64, 64], "activation_fn": "relu"}
-"""Actor and critic MLP [64, 64, 64] with ReLU, as in Cai et al.; keys given in
-``hyperparams.policy_kwargs`` override these one by one. Every other hyperparameter not given
-takes stable-baselines3's default for the algorithm, except for the off-policy ones
-``buffer_size``: ``n_timesteps``, since a larger buffer never fills and every checkpoint stores
-it whole, and ``train_freq``: 2 (``workers.agents.OFF_POLICY_TRAIN_FREQ``)."""
-
 
 TRAINING_ENV_DEFAULTS: dict[str, Any] = {"curriculum": 0.7, "rays": 16}
 """Env options training uses unless ``env`` sets them (measured in ``bench/LEARNING.md``): 70 %
@@ -331,7 +268,7 @@ class TrainingSpec(BaseModel):
                     )
                 )
             elif key == "policy_kwargs":
-                problems.extend(_policy_kwargs_problems(value))
+                problems.extend(policy_kwargs_problems(value))
         raise_problems(problems)
         return hyperparams
 
@@ -378,34 +315,3 @@ class TrainingSpec(BaseModel):
         """``policy_kwargs`` over ``DEFAULT_POLICY_KWARGS`` (activation still a name)."""
         given = self.hyperparams.get("policy_kwargs") or {}
         return {**DEFAULT_POLICY_KWARGS, **given}
-
-
-def _policy_kwargs_problems(value: Any) -> list[tuple[str, str]]:
-    where = "policy_kwargs"
-    if not isinstance(value, dict):
-        return [(where, "must be a mapping (e.g. {net_arch: [64, 64]})")]
-    problems = [
-        (f"{where}.{k}", f"unknown key; valid: {', '.join(sorted(POLICY_KWARGS))}")
-        for k in value
-        if k not in POLICY_KWARGS
-    ]
-    arch = value.get("net_arch")
-    if arch is not None and not _valid_arch(arch):
-        problems.append(
-            (f"{where}.net_arch", "must be a list of positive integers or {pi: [...], qf: [...]}")
-        )
-    act = value.get("activation_fn")
-    if act is not None and act not in ACTIVATIONS:
-        problems.append((f"{where}.activation_fn", f"must be one of {', '.join(ACTIVATIONS)}"))
-    return problems
-
-
-def _valid_arch(arch: Any) -> bool:
-    def layers(v: Any) -> bool:
-        return isinstance(v, list) and all(
-            isinstance(n, int) and not isinstance(n, bool) and n > 0 for n in v
-        )
-
-    if isinstance(arch, dict):
-        return bool(arch) and set(arch) <= {"pi", "qf", "vf"} and all(map(layers, arch.values()))
-    return layers(arch)
