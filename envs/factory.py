@@ -22,7 +22,8 @@ from envs.drivable import clearances, redraw_course
 from envs.errors import EnvConfigError
 from envs.feedforward import Track
 from envs.handover import checked_starts, opening_pose, real_starts
-from envs.nav_env import Leg, NavEnv
+from envs.leg import Leg
+from envs.nav_env import NavEnv
 from envs.options import EnvOptions, options_with
 from envs.rewards import reward_mode
 from envs.robots import (

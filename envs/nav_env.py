@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
@@ -43,42 +42,20 @@ import numpy as np
 from gymnasium import spaces
 
 from envs.errors import EnvConfigError
-from envs.feedforward import ActionShaping, Track
+from envs.feedforward import ActionShaping
 from envs.judge import RUNNING, SUCCESS, VIOLATION, AutomatonTracker, Stage
+from envs.leg import Leg
 from envs.observation import ObservationBuilder
 from envs.potential import GuidePotential
 from envs.rays import RayCaster
 from envs.rewards import RewardMode
 from envs.robots import Robot
 from planner.geometry.pose import Pose
-from planner.geometry.region_test import RegionTest
 from planner.geometry.world import World
-from planner.guidance import Guide, ProgressTracker
 from planner.ltl.automaton import Buchi
 
 if TYPE_CHECKING:
     from envs.options import EnvOptions
-    from planner.decompose import SubTask
-
-
-@dataclass(eq=False)
-class Leg:
-    """One sub-task path of the course: its guide and tracker, where its balls start in the
-    global progress index, and how much guide follows it."""
-
-    subtask: SubTask
-    guide: Guide
-    tracker: ProgressTracker
-    offset: int
-    """Global progress index of the leg's first ball."""
-    rest: float
-    """Guide length of the legs after this one."""
-    goal: RegionTest | None
-    """The goal region (None: the end of the guide)."""
-    headings: list[float]
-    """Yaw from each ball's centre toward the guide ahead (curriculum starts)."""
-    track: Track
-    """The path the pursuit feed-forward follows (``envs.feedforward.Track``)."""
 
 
 class NavEnv(gym.Env[np.ndarray, np.ndarray]):
