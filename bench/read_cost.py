@@ -1,7 +1,8 @@
 """What one read of a mission costs the API, for code trees side by side in one run.
 
 ``.venv/bin/python bench/read_cost.py --code OLD_CHECKOUT .`` starts ``ltlnav serve
---no-worker`` (embedded defaults, fresh data) once per tree and round, alternating the trees,
+--no-worker`` (embedded defaults, fresh data; with ``--postgres SERVER_URL`` a fresh
+PostgreSQL database) once per tree and round, alternating the trees,
 with ``PYTHONPATH`` set to the tree, submits 20 missions (queued: no worker runs) and measures:
 
 - ``--reads`` sequential ``GET /missions/{id}``: the client's median, the API's own median
@@ -16,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import json
 import os
 import statistics
 import sys
@@ -32,9 +32,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from bench.service import (  # noqa: E402
     EXAMPLE,
-    Layout,
     api_server,
-    bench_mission,
+    phase_layout,
     stop_on_sigterm,
 )
 from bench.service_load import cpu_seconds, server_seconds  # noqa: E402
@@ -82,13 +81,15 @@ async def bursts(url: str, ids: list[str], count: int, into: Figures) -> None:
             await asyncio.sleep(0.1)
 
 
-def measure(tree: Path, reads: int, burst_count: int, into: Figures) -> None:
-    root = Path(tempfile.mkdtemp(prefix="ltlnav-read-cost-"))
-    (root / "examples").mkdir()
-    (root / "examples" / f"{EXAMPLE}.json").write_text(json.dumps(bench_mission(3000)))
+def measure(tree: Path, reads: int, burst_count: int, into: Figures, postgres: str | None) -> None:
+    parent = Path(tempfile.mkdtemp(prefix="ltlnav-read-cost-"))
     os.environ["PYTHONPATH"] = str(tree)
     started: list[Any] = []
-    with api_server(Layout(root, None, None), started) as url:
+    options = argparse.Namespace(timesteps=3000, redis=None, postgres=postgres)
+    with (
+        phase_layout(parent, "reads", options) as layout,
+        api_server(layout, started) as url,
+    ):
         with httpx.Client(base_url=url) as client:
             ids = [
                 client.post("/missions", json={"example": EXAMPLE}).json()["id"]
@@ -114,11 +115,14 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=2, help="servers per tree, alternating")
     parser.add_argument("--reads", type=int, default=2000, help="sequential reads per round")
     parser.add_argument("--bursts", type=int, default=40, help="bursts of 20 per round")
+    parser.add_argument(
+        "--postgres", help="PostgreSQL server URL (no database name): state there, not SQLite"
+    )
     args = parser.parse_args()
     figures = {tree: Figures() for tree in args.code}
     for _ in range(args.rounds):
         for tree in args.code:
-            measure(tree.resolve(), args.reads, args.bursts, figures[tree])
+            measure(tree.resolve(), args.reads, args.bursts, figures[tree], args.postgres)
     print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f} at the end")
     print("| code | client median | API median | API CPU per read | burst median / p99 / max |")
     print("|---|---|---|---|---|")

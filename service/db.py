@@ -26,6 +26,14 @@ if TYPE_CHECKING:
 SQLITE_BUSY_TIMEOUT_MS = 30_000
 """How long a SQLite writer waits for the lock before failing."""
 
+SERVER_POOL_SIZE = 20
+SERVER_MAX_OVERFLOW = 20
+"""Connections a database server's pool keeps open, and may open beyond that at once. The API
+serves its sync routes from AnyIO's 40 threads: a pool smaller than the usual concurrency
+closes every connection it cannot keep on its return and opens a new one (a server process
+forked and authenticated) for the next burst, which under load cost the polled read more than
+its query."""
+
 MIGRATIONS_DIR = Path(__file__).resolve().parent.parent / "migrations"
 
 _engines: weakref.WeakSet[Engine] = weakref.WeakSet()
@@ -65,7 +73,13 @@ def make_engine(url: str, echo: bool = False) -> Engine:
         )
         event.listen(engine, "connect", _sqlite_pragmas)
     else:
-        engine = create_engine(parsed, echo=echo, pool_pre_ping=True)
+        engine = create_engine(
+            parsed,
+            echo=echo,
+            pool_pre_ping=True,
+            pool_size=SERVER_POOL_SIZE,
+            max_overflow=SERVER_MAX_OVERFLOW,
+        )
     _engines.add(engine)
     return engine
 
@@ -96,6 +110,9 @@ class Database:
         self.url = normalise_database_url(url)
         self.engine = make_engine(self.url, echo=echo)
         self.sessions = make_sessions(self.engine)
+        self.read_sessions = make_sessions(
+            self.engine.execution_options(isolation_level="AUTOCOMMIT")
+        )
 
     @classmethod
     def from_settings(cls, settings: Settings | None = None) -> Database:
@@ -107,6 +124,17 @@ class Database:
         """``session_scope`` on this database."""
         with session_scope(self.sessions) as session:
             yield session
+
+    @contextmanager
+    def read_session(self) -> Iterator[Session]:
+        """A session for a read of one statement (one consistent snapshot by itself): in
+        autocommit, so that a database server is not sent a BEGIN and a COMMIT around it (two
+        round trips of the polled read's three). It must not write."""
+        session = self.read_sessions()
+        try:
+            yield session
+        finally:
+            session.close()
 
     def dispose(self) -> None:
         """Close every pooled connection."""

@@ -141,7 +141,7 @@ async def get_mission(mission_id: MissionId, api_key: Caller, deps: ServicesDep)
 
 def mission_json(database: Database, mission_id: str, api_key: str | None) -> bytes:
     """The body of ``GET /missions/{mission_id}`` for ``api_key`` (404 as ``HTTPException``)."""
-    with database.session() as session:
+    with database.read_session() as session:
         view = mission_view(owned_mission(mission_id, session, api_key))
     return view.model_dump_json(by_alias=True).encode()
 

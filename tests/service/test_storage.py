@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
-from sqlalchemy import inspect
+from sqlalchemy import event, inspect
+from sqlalchemy.orm import Session
 from typer.testing import CliRunner
 
 from service import repository as repo
@@ -188,6 +189,42 @@ def test_mission_round_trip(database: Database) -> None:
         assert abs(mission.created_at - utcnow()) < timedelta(minutes=1)
         assert mission.cancel_requested is False
         assert mission.jobs == []
+
+
+def _autocommit(session: Session) -> bool:
+    """Whether the session's DBAPI connection sends each statement outside a transaction."""
+    raw = session.connection().connection.dbapi_connection
+    if session.get_bind().dialect.name == "sqlite":
+        return getattr(raw, "isolation_level", "") is None
+    return bool(getattr(raw, "autocommit", False))
+
+
+def test_a_read_session_sends_one_statement_outside_a_transaction(database: Database) -> None:
+    with database.session() as session:
+        mission_id = repo.create_mission(session, "kept", DOCUMENT, api_key="alpha").id
+    statements: list[str] = []
+
+    def record(*args: object) -> None:
+        statements.append(str(args[2]))
+
+    event.listen(database.engine, "before_cursor_execute", record)
+    try:
+        with database.read_session() as session:
+            assert _autocommit(session)
+            mission = repo.get_owned_mission(session, mission_id, "alpha")
+            assert mission is not None and mission.jobs == []
+    finally:
+        event.remove(database.engine, "before_cursor_execute", record)
+    assert len(statements) == 1, statements
+
+    # The pooled connection it used is transactional again for the sessions that write.
+    with database.session() as session:
+        assert not _autocommit(session)
+        repo.create_mission(session, "rolled back", DOCUMENT, api_key="alpha")
+        session.rollback()
+    with database.read_session() as session:
+        page = repo.list_missions(session, "alpha", 10, 0, None)
+    assert [m.name for m in page.items] == ["kept"]
 
 
 def test_missions_scoped_by_key(database: Database) -> None:
