@@ -30,6 +30,7 @@ from tests.service.fault_hooks.cluster import (
     ensure_redis,
     free_port,
     make_cluster,
+    small_filesystem,
 )
 from tests.service.fault_hooks.scenarios import TEST, FaultRow
 from tests.workers.missions import tiny_mission
@@ -171,6 +172,27 @@ def test_database_outage_mid_training(proxied: Cluster) -> None:
         # training again). On a fast machine every job may end during the outage.
         assert sorted(kept + reused) == sorted(row.tokens), row
         assert row.notes[0] != "0 checkpoint files written during the outage", row
+
+
+@pytest.mark.slow
+def test_a_full_disk_under_the_sqlite_state_mid_training(tmp_path: Path) -> None:
+    """The filesystem of the SQLite state file full for 15 s mid-training (a tmpfs of its own,
+    filled up): every write of the workers is refused meanwhile ("database or disk is full"),
+    not merely delayed as by a lock. The mission completes and nothing is written twice."""
+    state = tmp_path / "state"
+    with small_filesystem(state, megabytes=32) as problem:
+        if problem:
+            pytest.skip(problem)
+        knobs = {**FAST, "LTLNAV_DATABASE_URL": f"sqlite:///{state / 'ltlnav.db'}"}
+        cluster = make_cluster("embedded", tmp_path, knobs)
+        try:
+            scale = replace(TEST, budget=600)
+            row = scenarios.database_outage(cluster, scale, full_disk=state)
+            assert_recovered(row, cluster)
+            assert row.facts["filled bytes"] > 0, row
+            assert "database or disk is full" in cluster.tail(10**6), cluster.tail()
+        finally:
+            cluster.stop()
 
 
 @pytest.mark.slow

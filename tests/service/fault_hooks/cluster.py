@@ -310,6 +310,29 @@ def make_cluster(
     return cluster
 
 
+@contextmanager
+def small_filesystem(folder: Path, megabytes: int) -> Iterator[str]:
+    """A tmpfs of ``megabytes`` mounted on ``folder`` (made) for the block, unmounted after.
+    Yields why it could not be mounted ("" when it is: mounting needs root, or
+    ``CAP_SYS_ADMIN``)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    command = ["mount", "-t", "tmpfs", "-o", f"size={megabytes}m", "tmpfs", str(folder)]
+    try:
+        run = subprocess.run(command, capture_output=True, text=True, timeout=30, check=False)
+    except (OSError, subprocess.TimeoutExpired) as error:
+        yield f"{' '.join(command)}: {error}"
+        return
+    if run.returncode != 0:
+        yield f"a small filesystem cannot be mounted here ({' '.join(command)}: " + (
+            f"{run.stderr.strip() or run.returncode})"
+        )
+        return
+    try:
+        yield ""
+    finally:
+        subprocess.run(["umount", "-l", str(folder)], capture_output=True, timeout=30, check=False)
+
+
 PG_SERVER = "postgresql+psycopg://postgres@127.0.0.1:5432"
 
 

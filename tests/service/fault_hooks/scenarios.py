@@ -10,6 +10,7 @@ and the time from the fault until the interrupted work ran again.
 from __future__ import annotations
 
 import asyncio
+import errno
 import json
 import os
 import signal
@@ -304,14 +305,32 @@ def _lock_sqlite(path: Path, seconds: float, stop: threading.Event) -> threading
     return thread
 
 
-def database_outage(cluster: Cluster, scale: Scale) -> FaultRow:
+def _fill_disk(filler: Path) -> int:
+    """Write ``filler`` until its filesystem is full (``ENOSPC``); the bytes written."""
+    written = 0
+    with filler.open("wb", buffering=0) as out:
+        for chunk in (1 << 20, 4096, 512, 1):
+            block = bytes(chunk)
+            try:
+                while True:
+                    written += out.write(block)
+            except OSError as error:
+                if error.errno != errno.ENOSPC:
+                    raise
+    return written
+
+
+def database_outage(cluster: Cluster, scale: Scale, full_disk: Path | None = None) -> FaultRow:
     """The database unavailable to the workers for ``outage_seconds`` mid-training: PostgreSQL
-    behind a paused proxy (connections cut and refused), SQLite locked by an exclusive
-    transaction of another process. The jobs must keep training and keep their attempt."""
+    behind a paused proxy (connections cut and refused); SQLite locked by an exclusive
+    transaction of another process, or, with ``full_disk`` (the folder of the state file, on a
+    small filesystem of its own), that filesystem filled up (every write refused: "database or
+    disk is full"). The jobs must keep training and keep their attempt."""
     cluster.start_worker()
     mission_id, _ = cluster.submit(**scale.training())
     found = cluster.wait(_mid_training(cluster, mission_id, scale.budget), 240, "training")
-    row = FaultRow(cluster.kind, f"database down {scale.outage_seconds:.0f} s")
+    what = "state disk full" if full_disk is not None else "database down"
+    row = FaultRow(cluster.kind, f"{what} {scale.outage_seconds:.0f} s")
     row.interval = scale.interval
     row.before = _running_steps(found)
     attempts = row.tokens = {j.index: j.attempts for j in found.jobs if j.index in row.before}
@@ -326,6 +345,11 @@ def database_outage(cluster: Cluster, scale: Scale) -> FaultRow:
         cluster.db_proxy.pause()
         stop.wait(scale.outage_seconds)
         cluster.db_proxy.resume()
+    elif full_disk is not None:
+        filler = full_disk / "filler"
+        row.facts["filled bytes"] = _fill_disk(filler)
+        stop.wait(scale.outage_seconds)
+        filler.unlink()
     else:
         path = Path(cluster.settings.database_url.split(":///", 1)[1])
         _lock_sqlite(path, scale.outage_seconds, stop).join()
