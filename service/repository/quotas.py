@@ -12,7 +12,7 @@ import hashlib
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 
-from sqlalchemy import ColumnElement, func, select, text
+from sqlalchemy import ColumnElement, case, func, select, text
 from sqlalchemy.orm import Session
 
 from service.models import Mission, MissionStatus, utcnow
@@ -45,13 +45,15 @@ def _owner_condition(api_key: str | None) -> ColumnElement[bool]:
 def quota_usage(session: Session, api_key: str | None, now: datetime | None = None) -> QuotaUsage:
     """The usage of ``api_key`` (None: the open API) at ``now`` (default: the clock that
     stamps ``created_at``)."""
-    owned = _owner_condition(api_key)
-    active = session.scalar(
-        select(func.count()).select_from(Mission).where(owned, Mission.status.in_(ACTIVE_STATES))
-    )
     since = (now or utcnow()) - RATE_WINDOW
-    recent, oldest = session.execute(
-        select(func.count(), func.min(Mission.created_at)).where(owned, Mission.created_at > since)
+    is_active = Mission.status.in_(ACTIVE_STATES)
+    is_recent = Mission.created_at > since
+    active, recent, oldest = session.execute(
+        select(
+            func.sum(case((is_active, 1), else_=0)),
+            func.sum(case((is_recent, 1), else_=0)),
+            func.min(case((is_recent, Mission.created_at))),
+        ).where(_owner_condition(api_key))
     ).one()
     return QuotaUsage(active=int(active or 0), recent=int(recent or 0), oldest_recent=oldest)
 

@@ -259,6 +259,28 @@ def test_list_missions_paged_newest_first(database: Database) -> None:
         assert [m.id for m in only.items] == [ids[1]] and only.total == 1
 
 
+def test_quota_usage_counts_active_and_recent_missions_of_the_key(database: Database) -> None:
+    with database.session() as session:
+        ids = [repo.create_mission(session, f"m{i}", DOCUMENT, "alpha").id for i in range(4)]
+        repo.create_mission(session, "other key", DOCUMENT, "beta")
+    with database.session() as session:
+        repo.set_status(session, ids[0], MissionStatus.planning)
+        repo.set_status(session, ids[1], MissionStatus.planning)
+        repo.set_status(session, ids[1], MissionStatus.failed, "no accepting run")
+        missions = [repo.get_mission(session, i) for i in ids]
+        created = [m.created_at for m in missions if m is not None]
+
+    with database.session() as session:
+        now = repo.quota_usage(session, "alpha")
+        later = repo.quota_usage(session, "alpha", now=max(created) + timedelta(minutes=5))
+        nobody = repo.quota_usage(session, None)
+
+    assert (now.active, now.recent) == (3, 4)
+    assert now.oldest_recent == min(created) and now.oldest_recent.tzinfo is not None
+    assert (later.active, later.recent, later.oldest_recent) == (3, 0, None)
+    assert (nobody.active, nobody.recent, nobody.oldest_recent) == (0, 0, None)
+
+
 def test_status_transitions_with_reason(database: Database) -> None:
     with database.session() as session:
         mission_id = repo.create_mission(session, "m", DOCUMENT, None).id
