@@ -110,9 +110,10 @@ class Database:
         self.url = normalise_database_url(url)
         self.engine = make_engine(self.url, echo=echo)
         self.sessions = make_sessions(self.engine)
-        self.read_sessions = make_sessions(
-            self.engine.execution_options(isolation_level="AUTOCOMMIT")
-        )
+        reads = self.engine
+        if self.engine.dialect.name != "sqlite":
+            reads = reads.execution_options(isolation_level="AUTOCOMMIT")
+        self.read_sessions = make_sessions(reads)
 
     @classmethod
     def from_settings(cls, settings: Settings | None = None) -> Database:
@@ -127,9 +128,11 @@ class Database:
 
     @contextmanager
     def read_session(self) -> Iterator[Session]:
-        """A session for a read of one statement (one consistent snapshot by itself): in
-        autocommit, so that a database server is not sent a BEGIN and a COMMIT around it (two
-        round trips of the polled read's three). It must not write."""
+        """A session for a read of one statement (one consistent snapshot by itself). On a
+        database server it runs in autocommit, so that no BEGIN and COMMIT are sent around the
+        statement (two round trips of the polled read's four, with the pool's ping). On SQLite,
+        where they cost no round trip, switching the connection's mode cost more than it saved
+        (``bench/read_cost.py``): an ordinary session. It must not write."""
         session = self.read_sessions()
         try:
             yield session
