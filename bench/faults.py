@@ -2,9 +2,11 @@
 
 Run with ``.venv/bin/python bench/faults.py`` (both deployments: the embedded defaults, and
 Redis + PostgreSQL on 127.0.0.1 when they answer) or ``--deployments embedded`` and
-``--only child,outage``. Each scenario gets fresh processes (``tests.service.fault_hooks``:
-real ``celery worker`` processes with injected faults, real SIGKILL), a fresh data folder and,
-on PostgreSQL, a fresh database; every process it started is killed when it ends.
+``--only child,outage`` (``statedisk``: the disk of the SQLite state file full for
+``--outage`` seconds; embedded only, needs root to mount a small tmpfs). Each scenario gets
+fresh processes (``tests.service.fault_hooks``: real ``celery worker`` processes with injected
+faults, real SIGKILL), a fresh data folder and, on PostgreSQL, a fresh database; every process
+it started is killed when it ends.
 
 Columns: the fault and when it came; how the mission ended; ``lost/interval``: the most steps
 an interrupted job had done before the fault beyond the step it resumed from, against the
@@ -34,6 +36,7 @@ from tests.service.fault_hooks.cluster import (
     free_port,
     make_cluster,
     postgres_database,
+    small_filesystem,
 )
 from tests.service.fault_hooks.scenarios import FULL, FaultRow, Scale
 
@@ -50,6 +53,12 @@ KNOBS = {
 
 Scenario = Callable[[Cluster, Scale, Path], list[FaultRow]]
 
+STATE = "state"
+"""The folder, under a scenario's root, of the ``statedisk`` deployment's SQLite state file."""
+
+STATE_DISK_MB = 64
+"""Size of the filesystem mounted there."""
+
 
 def _dead_broker(cluster: Cluster) -> str:
     if cluster.kind == "embedded":
@@ -62,6 +71,10 @@ SCENARIOS: dict[str, Scenario] = {
     "phases": lambda c, s, _: scenarios.worker_sigkill_each_phase(c, s),
     # four budgets: the jobs still train when the database comes back
     "outage": lambda c, s, _: [scenarios.database_outage(c, replace(s, budget=4 * s.budget))],
+    # the SQLite state file's own filesystem full (embedded only; ``deployment`` mounts it)
+    "statedisk": lambda c, s, root: [
+        scenarios.database_outage(c, replace(s, budget=4 * s.budget), full_disk=root / STATE)
+    ],
     "broker": lambda c, s, _: scenarios.poison_mission(c, s, dead_broker=_dead_broker(c)),
     "enospc": lambda c, s, root: [scenarios.disk_full_at_checkpoint(c, s, root / "enospc")],
     "forced": lambda c, s, _: [
@@ -74,18 +87,27 @@ SCENARIOS: dict[str, Scenario] = {
 
 
 @contextmanager
-def deployment(kind: str, root: Path, redis_db: int, proxy: bool) -> Iterator[Cluster]:
+def deployment(
+    kind: str, root: Path, redis_db: int, proxy: bool, state_disk: bool = False
+) -> Iterator[Cluster]:
     """A fresh cluster of ``kind`` under ``root``; its processes killed and its PostgreSQL
-    database dropped afterwards."""
+    database dropped afterwards. With ``state_disk`` (embedded), the SQLite state file lives
+    on a filesystem of its own (``STATE_DISK_MB``, under ``root / STATE``)."""
     with ExitStack() as stack:
         database_url = redis_url = None
+        knobs = dict(KNOBS)
+        if state_disk:
+            problem = stack.enter_context(small_filesystem(root / STATE, STATE_DISK_MB))
+            if problem:
+                raise AssertionError(problem)
+            knobs["LTLNAV_DATABASE_URL"] = f"sqlite:///{root / STATE / 'ltlnav.db'}"
         if kind == "redis-postgresql":
             import redis
 
             database_url = stack.enter_context(postgres_database("ltlnav_bench_faults"))
             redis_url = f"redis://127.0.0.1:6379/{redis_db}"
             redis.Redis.from_url(redis_url).flushdb()
-        cluster = make_cluster(kind, root, KNOBS, database_url, redis_url, proxy_database=proxy)
+        cluster = make_cluster(kind, root, knobs, database_url, redis_url, proxy_database=proxy)
         try:
             yield cluster
         finally:
@@ -152,11 +174,20 @@ def main() -> None:
             print(f"{kind}: skipped, the servers do not answer ({why})", flush=True)
             continue
         for name in names:
+            if name == "statedisk" and kind != "embedded":
+                print(f"# {kind} {name}: embedded only (a state file on a disk)", flush=True)
+                continue
             started = time.monotonic()
             with tempfile.TemporaryDirectory(prefix=f"ltlnav-faults-{name}-") as folder:
                 root = Path(folder)
                 try:
-                    with deployment(kind, root, args.redis_db, proxy=name == "outage") as c:
+                    with deployment(
+                        kind,
+                        root,
+                        args.redis_db,
+                        proxy=name == "outage",
+                        state_disk=name == "statedisk",
+                    ) as c:
                         found = SCENARIOS[name](c, scale, root)
                 except AssertionError as error:
                     found = [FaultRow(kind, name, status="stuck", notes=[str(error)[:300]])]
