@@ -144,8 +144,9 @@ def load_mission(name: str, row: Row) -> MissionSpec:
 
 def row_jobs(row: Row, out: Path) -> tuple[MissionRun, list[SubtaskJob]]:
     """The row's run and its jobs. The plan is made once per mission and shared by every row
-    of it (``OUT/<mission>/plan.json``, copied into the row folder): the planner may refine for
-    ``refine_seconds``, so planning per row would give each method and seed its own guides.
+    of it (``OUT/<mission>/plan.json``, copied into the row folder): a mission that sets
+    ``refine_seconds`` plans by the clock, and planning per row would give each method and seed
+    its own guides.
     The run is built directly, not opened: ``g-rrt`` rows train one agent, which the service
     refuses to serve."""
     mission = load_mission(row.mission, row)
