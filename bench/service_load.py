@@ -73,10 +73,10 @@ KEYS = [f"bench-load-key-{i}" for i in range(10)]
 """The API keys the missions are spread over (mission i belongs to key i mod 10)."""
 
 WORKERS = 2
+"""Worker processes, each ``ltlnav worker --concurrency 1``."""
 
 LAG_TICK = 0.01
 """Seconds the bench's loop-lag probe sleeps between its readings."""
-"""Worker processes, each ``ltlnav worker --concurrency 1``."""
 
 FINAL = ("done", "failed", "cancelled")
 
