@@ -164,7 +164,7 @@ def train(
 
     Re-running on the same folder resumes from the checkpoints."""
     from service.settings import get_settings
-    from service.train_progress import TrainProgress
+    from service.train_progress import TrainProgress, result_lines
     from workers.admission import load_admitted, mission_problems
     from workers.mission import MissionError
     from workers.pipeline import run_pipeline
@@ -193,24 +193,8 @@ def train(
             result = run_pipeline(spec, folder, jobs=jobs, on_progress=bars.show, limits=limits)
         except LtlnavError as error:
             raise _fail(error) from error
-    for r in result.results:
-        final = r.final or {}
-        rate = final.get("success_rate")
-        shown = "-" if rate is None else f"{100 * rate:.1f} %"
-        typer.echo(
-            f"  sub-task {r.subtask}: {r.steps} steps ({r.stopped}), success {shown} over "
-            f"{final.get('episodes', 0)} episodes"
-        )
-    for repair in result.repairs:
-        subtasks = ", ".join(map(str, repair.subtasks))
-        typer.echo(
-            f"  hand-over repair {repair.round} (sub-tasks {subtasks}): mission success "
-            f"{100 * repair.success_before:.0f} % -> {100 * repair.success_after:.0f} %, "
-            + ("kept" if repair.kept else "discarded")
-        )
-    ev = result.evaluation
-    typer.echo(f"mission {ev.summary()}")
-    typer.echo(f"bundle written to {result.bundle}")
+    for line in result_lines(result):
+        typer.echo(line)
 
 
 @app.command("rollout")

@@ -1,11 +1,13 @@
-"""The progress bars of ``ltlnav train``: one per sub-task, with its latest success rate, the
+"""What ``ltlnav train`` shows: a progress bar per sub-task, with its latest success rate, the
 time left while it trains and the time it took once it is done (a job that stopped at its
-target long before its budget shows how long it ran, not the hours its budget would take)."""
+target long before its budget shows how long it ran, not the hours its budget would take);
+then the lines of the result (``result_lines``)."""
 
 from __future__ import annotations
 
 from datetime import timedelta
 from types import TracebackType
+from typing import TYPE_CHECKING
 
 from rich.progress import (
     BarColumn,
@@ -18,6 +20,9 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 from rich.text import Text
+
+if TYPE_CHECKING:
+    from workers.run import RunResult
 
 
 class RemainingOrElapsed(ProgressColumn):
@@ -71,3 +76,27 @@ class TrainProgress:
         shown = "-" if rate is None else f"{100 * rate:.0f} %"
         took = self.progress.tasks[task].elapsed if done else None
         self.progress.update(task, completed=steps, total=total, success=shown, took=took)
+
+
+def result_lines(result: RunResult) -> list[str]:
+    """What ``ltlnav train`` prints once a run ends: each sub-task, each hand-over repair
+    round, the mission's evaluation and the bundle."""
+    lines = []
+    for r in result.results:
+        final = r.final or {}
+        rate = final.get("success_rate")
+        shown = "-" if rate is None else f"{100 * rate:.1f} %"
+        lines.append(
+            f"  sub-task {r.subtask}: {r.steps} steps ({r.stopped}), success {shown} over "
+            f"{final.get('episodes', 0)} episodes"
+        )
+    for repair in result.repairs:
+        subtasks = ", ".join(map(str, repair.subtasks))
+        lines.append(
+            f"  hand-over repair {repair.round} (sub-tasks {subtasks}): mission success "
+            f"{100 * repair.success_before:.0f} % -> {100 * repair.success_after:.0f} %, "
+            + ("kept" if repair.kept else "discarded")
+        )
+    lines.append(f"mission {result.evaluation.summary()}")
+    lines.append(f"bundle written to {result.bundle}")
+    return lines
