@@ -16,8 +16,11 @@ one plan into ``OUT/<mission>/<method>+protocol=<p>.../seed<N>/``, one run after
 with ``--jobs`` processes, and its wall time from start to its last rollout is measured and
 kept in ``wall.json``. The reported figures come from evaluations no decision used
 (``workers.training``: the final 200 trials at ``seed + 2``; ``workers.run``: the rollouts at
-``seed + 7``). Runs that finished are reused, so the command resumes; ``--report`` re-prints
-``TABLE1.md`` and the figures from what is on disk.
+``seed + 7``). Runs that finished are reused, so the command resumes. A finished run's figures
+(sub-task and mission success, steps, wall time, the code it ran, its periodic evaluations) are
+kept as small JSON in ``--records`` (``bench/table1/``, committed): the run folders hold models
+and replay buffers and do not outlive the machine, the records do. ``--report`` re-prints
+``TABLE1.md`` and the figures from the records and whatever run folders are on disk.
 
 The whole table is 10 rows x 2 protocols x 5 methods x 3 seeds = 300 runs: at the budgets below
 that is several days on two cores, so ``--rows``, ``--protocols``, ``--methods`` and
@@ -94,18 +97,19 @@ def train(task: Task, method: str, protocol: str, seed: int, out: Path, jobs: in
     record = out / row.folder / "wall.json"
     if record.is_file():
         return
-    started = time.monotonic()
+    commit, started = _commit(), time.monotonic()
     run_rows([row], out, jobs)
-    record.write_text(json.dumps({"seconds": time.monotonic() - started, "jobs": jobs}))
+    spent = {"seconds": time.monotonic() - started, "jobs": jobs, "commit": commit}
+    record.write_text(json.dumps(spent))
 
 
-def zero_control(task: Task, protocol: str, out: Path) -> dict[str, Any]:
-    """The zero action evaluated like a policy on the row's plan (``workers.control``), stored
-    in ``zero.json``."""
+def zero_control(task: Task, protocol: str, out: Path, records: Path) -> dict[str, Any]:
+    """The zero action evaluated like a policy on the row's plan (``workers.control``), kept in
+    ``records``."""
     from workers.control import zero_control as control
     from workers.run import stored_or_new_plan
 
-    record = out / task.name / f"zero+protocol={protocol}" / "zero.json"
+    record = _zero_record(task, protocol, records)
     if record.is_file():
         figures: dict[str, Any] = json.loads(record.read_text())
         return figures
@@ -115,28 +119,74 @@ def zero_control(task: Task, protocol: str, out: Path) -> dict[str, Any]:
     figures = {
         "subtasks": [e.success_rate for e in evaluation.subtasks],
         "mission": evaluation.mission.success_rate,
+        "commit": _commit(),
     }
     record.parent.mkdir(parents=True, exist_ok=True)
     record.write_text(json.dumps(figures))
     return figures
 
 
-def run_figures(task: Task, method: str, protocol: str, seed: int, out: Path) -> dict[str, Any]:
-    """Sub-task successes, steps, mission success and wall time of a finished run ({}:
-    not run)."""
+def _zero_record(task: Task, protocol: str, records: Path) -> Path:
+    return records / task.name / f"zero+protocol={protocol}.json"
+
+
+def _commit() -> str:
+    """The code the run was measured with (``git describe``; ``unknown`` outside a checkout)."""
+    import subprocess
+
+    try:
+        return subprocess.run(
+            ["git", "-C", str(ROOT), "describe", "--always", "--dirty"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def _curve(folder: Path) -> dict[str, Any]:
+    """Periodic evaluations of every sub-task: the steps and the success rate at each."""
+    curve: dict[str, Any] = {}
+    for npz in sorted(folder.glob("subtask_*/evaluations.npz")):
+        data = np.load(npz)
+        curve[npz.parent.name] = {
+            "timesteps": [int(t) for t in data["timesteps"]],
+            "success": [round(float(x), 4) for x in data["successes"].mean(axis=1)],
+        }
+    return curve
+
+
+def run_figures(
+    task: Task, method: str, protocol: str, seed: int, out: Path, records: Path
+) -> dict[str, Any]:
+    """Sub-task successes, steps, mission success, wall time and curves of a finished run ({}:
+    not run). A finished run's figures are kept in ``records`` (small JSON, committed), so the
+    table and its figures survive the run folders (models, replay buffers) being deleted."""
     row = run_row(task, method, protocol, seed)
+    record = records / f"{row.folder}.json"
+    if record.is_file():
+        kept: dict[str, Any] = json.loads(record.read_text())
+        return kept
     wall = out / row.folder / "wall.json"
     fig = row_figures(row, out)
     if fig is None or not wall.is_file():
         return {}
     results = fig["results"]
-    return {
+    spent = json.loads(wall.read_text())
+    figures = {
         "subtasks": [(r.get("final") or {}).get("success_rate", 0.0) for r in results],
         "steps": [r["steps"] for r in results],
         "met": [r["stopped"] == "target" for r in results],
         "mission": None if fig["mission"] is None else fig["mission"]["success_rate"],
-        "wall": json.loads(wall.read_text())["seconds"],
+        "wall": spent["seconds"],
+        "jobs": spent["jobs"],
+        "commit": spent.get("commit", "unknown"),
+        "curve": _curve(out / row.folder),
     }
+    record.parent.mkdir(parents=True, exist_ok=True)
+    record.write_text(json.dumps(figures, indent=1) + "\n")
+    return figures
 
 
 def _pct(x: float | None) -> str:
@@ -162,7 +212,12 @@ def cell(runs: list[dict[str, Any]]) -> list[str]:
 
 
 def report(
-    tasks: list[Task], methods: list[str], protocols: list[str], seeds: list[int], out: Path
+    tasks: list[Task],
+    methods: list[str],
+    protocols: list[str],
+    seeds: list[int],
+    out: Path,
+    records: Path,
 ) -> str:
     """``TABLE1.md``: one table per protocol, a line per (row, method) and the control."""
     lines = ["# Table I (bench/table1.py)", ""]
@@ -176,13 +231,13 @@ def report(
         ]
         for task in tasks:
             for method in methods:
-                runs = [run_figures(task, method, protocol, s, out) for s in seeds]
+                runs = [run_figures(task, method, protocol, s, out, records) for s in seeds]
                 lines.append(
                     f"| {task.label} | {task.budget // 1000}k | {method} | "
                     + " | ".join(cell(runs))
                     + " |"
                 )
-            zero = out / task.name / f"zero+protocol={protocol}" / "zero.json"
+            zero = _zero_record(task, protocol, records)
             if zero.is_file():
                 z = json.loads(zero.read_text())
                 rates = z["subtasks"]
@@ -195,8 +250,36 @@ def report(
     return "\n".join(lines)
 
 
+def method_curve(
+    task: Task, method: str, protocol: str, seeds: list[int], out: Path, records: Path
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The steps of the periodic evaluations and, per seed and sub-task, the success rate at
+    each (a run that stopped early holds its last rate); None: no evaluation yet."""
+    series: list[np.ndarray] = []
+    steps: np.ndarray | None = None
+    for seed in seeds:
+        run = run_figures(task, method, protocol, seed, out, records)
+        for subtask in run.get("curve", {}).values():
+            if steps is None or len(subtask["timesteps"]) > len(steps):
+                steps = np.asarray(subtask["timesteps"])
+            series.append(np.asarray(subtask["success"]))
+    if not series or steps is None:
+        return None
+    grid = np.full((len(series), len(steps)), np.nan)
+    for i, s in enumerate(series):
+        grid[i, : len(s)] = s
+        grid[i, len(s) :] = s[-1]
+    return steps, grid
+
+
 def curves(
-    task: Task, methods: list[str], protocol: str, seeds: list[int], out: Path, path: Path
+    task: Task,
+    methods: list[str],
+    protocol: str,
+    seeds: list[int],
+    out: Path,
+    records: Path,
+    path: Path,
 ) -> None:
     """Success rate against env steps, per method: median over seeds and sub-tasks of the
     periodic evaluations, band from min to max."""
@@ -207,21 +290,10 @@ def curves(
 
     figure, axes = plt.subplots(figsize=(6, 4))
     for method in methods:
-        series: list[np.ndarray] = []
-        steps: np.ndarray | None = None
-        for seed in seeds:
-            folder = out / run_row(task, method, protocol, seed).folder
-            for npz in sorted(folder.glob("subtask_*/evaluations.npz")):
-                data = np.load(npz)
-                if steps is None or len(data["timesteps"]) > len(steps):
-                    steps = data["timesteps"]
-                series.append(data["successes"].mean(axis=1))
-        if not series or steps is None:
+        curve = method_curve(task, method, protocol, seeds, out, records)
+        if curve is None:
             continue
-        grid = np.full((len(series), len(steps)), np.nan)
-        for i, s in enumerate(series):
-            grid[i, : len(s)] = s
-            grid[i, len(s) :] = s[-1]  # an early stop holds its last rate
+        steps, grid = curve
         axes.plot(steps, np.nanmedian(grid, axis=0), label=method)
         axes.fill_between(steps, np.nanmin(grid, axis=0), np.nanmax(grid, axis=0), alpha=0.2)
     axes.set(xlabel="env steps", ylabel="success rate", title=f"{task.label} ({protocol})")
@@ -241,6 +313,12 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--seeds", nargs="*", type=int, default=list(SEEDS))
     p.add_argument("--jobs", type=int, default=2, help="training processes per run")
     p.add_argument("--out", type=Path, default=ROOT / "var" / "bench" / "table1")
+    p.add_argument(
+        "--records",
+        type=Path,
+        default=ROOT / "bench" / "table1",
+        help="the finished runs' figures (small JSON; the table is printed from them)",
+    )
     p.add_argument("--budget", type=int, help="steps per sub-task of every row (smoke runs)")
     p.add_argument("--report", action="store_true", help="re-print TABLE1.md from disk")
     args = p.parse_args(argv)
@@ -250,16 +328,16 @@ def main(argv: list[str] | None = None) -> None:
     if not args.report:
         for task in tasks:
             for protocol in args.protocols:
-                zero_control(task, protocol, args.out)
+                zero_control(task, protocol, args.out, args.records)
                 for seed in args.seeds:
                     for method in args.methods:
                         train(task, method, protocol, seed, args.out, args.jobs)
-    text = report(tasks, args.methods, args.protocols, args.seeds, args.out)
+    text = report(tasks, args.methods, args.protocols, args.seeds, args.out, args.records)
     (args.out / "TABLE1.md").write_text(text)
     for task in tasks:
         for protocol in args.protocols:
             picture = args.out / f"{task.name}-{protocol}.png"
-            curves(task, args.methods, protocol, args.seeds, args.out, picture)
+            curves(task, args.methods, protocol, args.seeds, args.out, args.records, picture)
     print(text)
 
 
