@@ -15,6 +15,8 @@ import math
 
 import numpy as np
 
+from planner.ltl.guard import Cube
+from planner.search.corridor import FreeGrid, lay, region_cells
 from planner.search.product_sampling import Realisable, Sampler, Stepper
 from planner.search.product_tree import ProductTree
 
@@ -22,6 +24,9 @@ FLOOD_EVERY = 150
 """Iterations between two floods of a tree's automaton states over its roadmap while no lasso
 exists (at least; see :meth:`Growth.flood_if_due`)."""
 FLOOD_GROWTH = 1.2
+CORRIDOR_AFTER = 300
+"""Iterations without a state closer to the goal before the tree seeks a corridor to the next
+region through the free cells of a grid (:mod:`planner.search.corridor`)."""
 
 
 class Growth:
@@ -35,6 +40,7 @@ class Growth:
         sampler: Sampler,
         bias: float,
         home: np.ndarray | None = None,
+        grids: dict[float, FreeGrid] | None = None,
     ) -> None:
         self.tree = tree
         self.paths = paths
@@ -47,6 +53,12 @@ class Growth:
         self.stall = 0
         self.goal_nodes: list[int] = []
         self.next_flood = FLOOD_EVERY
+        self.grids = {} if grids is None else grids
+        """Free-cell grids by clearance, built on first need and shared with suffix trees."""
+        self.best_dist = math.inf
+        self.progress_at = 0
+        """Iteration at which the least automaton distance in the tree last fell."""
+        self.corridor_tried: set[int] = set()
 
     def closest_states(self) -> tuple[int, list[int]]:
         """Least automaton distance to the goal among the tree's states, and those states."""
@@ -90,6 +102,39 @@ class Growth:
             self.iterations + FLOOD_EVERY, math.ceil(self.iterations * FLOOD_GROWTH)
         )
         return self.flood()
+
+    def corridor_if_stuck(self) -> list[int]:
+        """After CORRIDOR_AFTER iterations in which no state came closer to the goal, lay a
+        corridor (:mod:`planner.search.corridor`) from each closest state's points toward the
+        regions that advance it, once per state, and flood; returns the new goal nodes."""
+        dmin, states = self.closest_states()
+        if dmin < self.best_dist:
+            self.best_dist, self.progress_at = dmin, self.iterations
+            return []
+        if dmin <= 0 or self.iterations - self.progress_at < CORRIDOR_AFTER:
+            return []
+        self.progress_at = self.iterations
+        added = 0
+        for q in states:
+            if q not in self.corridor_tried:
+                self.corridor_tried.add(q)
+                added += sum(self._corridor(q, c) for c in self.paths.advancing_cubes(q, self.dist))
+        return self.flood() if added else []
+
+    def _corridor(self, q: int, cube: Cube) -> int:
+        """Lay the shortest free-cell corridor from the points of state ``q`` to a cell whose
+        label satisfies ``cube``; returns the points added."""
+        tree = self.tree
+        grid = self.grids.get(tree.clearance)
+        if grid is None:
+            grid = self.grids[tree.clearance] = FreeGrid(tree.world, tree.clearance)
+        pids = np.flatnonzero(tree.node_at[: tree.npts, q] >= 0)
+        cells = grid.cells(tree.pos[pids])
+        found = grid.path(cells, region_cells(grid, tree.oracle, cube))
+        if found is None:
+            return 0
+        origin, centres = found
+        return lay(tree, int(pids[np.flatnonzero(cells == origin)[0]]), centres, tree.eta)
 
     def flood(self) -> list[int]:
         """Spread the tree's automaton states over its roadmap (:meth:`ProductTree.flood`);
@@ -149,7 +194,8 @@ class SuffixGrowth(Growth):
         else:
             tree.add_node(tree.add_point(self.x_star, self.mask_star), self.q_star, -1, 0.0)
             seeded = []
-        super().__init__(tree, paths, paths.distances_to(closing), sampler, bias, self.x_star)
+        dist = paths.distances_to(closing)
+        super().__init__(tree, paths, dist, sampler, bias, self.x_star, growth.grids)
         self.closers: list[tuple[int, float]] = []
         self._close([n for n in seeded if self.dist.get(tree.node_q[n]) == 0])
 

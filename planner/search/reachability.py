@@ -53,7 +53,7 @@ _REL_TOL = 1e-9
 """Slack, relative to the workspace's coordinate scale, by which a cell must be in collision."""
 
 
-class _Grid:
+class CellGrid:
     """Cubic cells of edge ``h`` from ``lo``; cell ``k`` spans ``lo + h*k .. lo + h*(k+1)``."""
 
     def __init__(self, world: World, max_cells: int) -> None:
@@ -136,7 +136,7 @@ def _deep_inside(shape: Shape, p: FloatArray, margin: float) -> BoolArray:
     return np.asarray(inside & (edge > -margin))
 
 
-def _blocked(world: World, grid: _Grid, clearance: float) -> BoolArray:
+def _blocked(world: World, grid: CellGrid, clearance: float) -> BoolArray:
     """Cells entirely in collision for a robot of radius ``clearance``."""
     blocked = np.zeros(grid.shape, dtype=bool)
     inner_lo = world.bounds[:, 0] + clearance
@@ -170,7 +170,7 @@ def _blocked(world: World, grid: _Grid, clearance: float) -> BoolArray:
     return blocked
 
 
-def _box_slabs(grid: _Grid, box: Box, clearance: float, cells: list[slice]) -> BoolArray:
+def _box_slabs(grid: CellGrid, box: Box, clearance: float, cells: list[slice]) -> BoolArray:
     """Cells inside the box stretched by ``clearance`` along a single axis (the flat faces of
     the inflated box), with no slack: the comparisons mirror, operation for operation, the
     ones :meth:`World.in_collision` makes, and rounding is monotone, so no point of such a
@@ -192,7 +192,7 @@ def _box_slabs(grid: _Grid, box: Box, clearance: float, cells: list[slice]) -> B
     return out
 
 
-def _start_component(grid: _Grid, comp: np.ndarray, start: FloatArray) -> int:
+def _start_component(grid: CellGrid, comp: np.ndarray, start: FloatArray) -> int:
     """Label of the possibly-free component holding ``start`` (0 when its cells are blocked)."""
     ranges = []
     for j in range(grid.dim):
@@ -231,7 +231,7 @@ def unreachable_regions(
         return []
     if world.in_collision(s[None, :], clearance)[0]:
         return []
-    grid = _Grid(world, max_cells)
+    grid = CellGrid(world, max_cells)
     free = ~_blocked(world, grid, clearance)
     comp, _ = ndimage.label(free, structure=np.ones((3,) * grid.dim, dtype=bool))
     home = _start_component(grid, comp, s)
@@ -240,7 +240,7 @@ def unreachable_regions(
     return [n for n in names if not _meets(grid, comp == home, world.regions[n])]
 
 
-def _meets(grid: _Grid, component: BoolArray, region: Shape) -> bool:
+def _meets(grid: CellGrid, component: BoolArray, region: Shape) -> bool:
     """Whether some cell of ``component`` may meet ``region`` (conservatively: its centre is
     within half a cell diagonal of the region). A spread-out sample of the candidate cells is
     tried first: when the region is reachable it usually settles the question."""

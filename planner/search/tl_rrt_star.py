@@ -196,10 +196,12 @@ class _Planner:
                 if not any(s.closers for s in self.suffixes):
                     for s in self.suffixes:
                         s.flood_if_due()
+                        s.corridor_if_stuck()
                     self._grow_prefix(10)
             else:
                 self._grow_prefix(20, until_goal=True)
                 self.prefix.flood_if_due()
+                self.prefix.corridor_if_stuck()
 
     def refine(self, seconds: float, iterations: int | None = None) -> None:
         """Anytime phase: grow the prefix tree for ``seconds`` CPU seconds, or for
