@@ -2,8 +2,9 @@
 
 Run with ``.venv/bin/python bench/faults.py`` (both deployments: the embedded defaults, and
 Redis + PostgreSQL on 127.0.0.1 when they answer) or ``--deployments embedded`` and
-``--only child,outage`` (``statedisk``: the disk of the SQLite state file full for
-``--outage`` seconds; embedded only, needs root to mount a small tmpfs). Each scenario gets
+``--only child,outage`` (``statedisk``: the disk of the state full for ``--outage`` seconds:
+the SQLite file's, or the PostgreSQL database's tablespace; needs root to mount a small tmpfs,
+and a PostgreSQL server on this machine). Each scenario gets
 fresh processes (``tests.service.fault_hooks``: real ``celery worker`` processes with injected
 faults, real SIGKILL), a fresh data folder and, on PostgreSQL, a fresh database; every process
 it started is killed when it ends.
@@ -36,6 +37,7 @@ from tests.service.fault_hooks.cluster import (
     free_port,
     make_cluster,
     postgres_database,
+    server_owns,
     small_filesystem,
 )
 from tests.service.fault_hooks.scenarios import FULL, FaultRow, Scale
@@ -54,7 +56,8 @@ KNOBS = {
 Scenario = Callable[[Cluster, Scale, Path], list[FaultRow]]
 
 STATE = "state"
-"""The folder, under a scenario's root, of the ``statedisk`` deployment's SQLite state file."""
+"""The folder, under a scenario's root, of the ``statedisk`` deployment's SQLite state file or
+PostgreSQL tablespace."""
 
 STATE_DISK_MB = 64
 """Size of the filesystem mounted there."""
@@ -71,7 +74,8 @@ SCENARIOS: dict[str, Scenario] = {
     "phases": lambda c, s, _: scenarios.worker_sigkill_each_phase(c, s),
     # four budgets: the jobs still train when the database comes back
     "outage": lambda c, s, _: [scenarios.database_outage(c, replace(s, budget=4 * s.budget))],
-    # the SQLite state file's own filesystem full (embedded only; ``deployment`` mounts it)
+    # the state's own filesystem full: the SQLite file's, or the PostgreSQL database's
+    # tablespace (``deployment`` mounts it)
     "statedisk": lambda c, s, root: [
         scenarios.database_outage(c, replace(s, budget=4 * s.budget), full_disk=root / STATE)
     ],
@@ -91,20 +95,28 @@ def deployment(
     kind: str, root: Path, redis_db: int, proxy: bool, state_disk: bool = False
 ) -> Iterator[Cluster]:
     """A fresh cluster of ``kind`` under ``root``; its processes killed and its PostgreSQL
-    database dropped afterwards. With ``state_disk`` (embedded), the SQLite state file lives
-    on a filesystem of its own (``STATE_DISK_MB``, under ``root / STATE``)."""
+    database dropped afterwards. With ``state_disk``, the SQLite state file, or the PostgreSQL
+    database's tablespace, lives on a filesystem of its own (``STATE_DISK_MB``, under
+    ``root / STATE``)."""
     with ExitStack() as stack:
         database_url = redis_url = None
         knobs = dict(KNOBS)
+        tablespace = None
         if state_disk:
             problem = stack.enter_context(small_filesystem(root / STATE, STATE_DISK_MB))
+            if kind == "redis-postgresql" and not problem:
+                root.chmod(0o711)  # the server's user reaches the tablespace through it
+                problem, tablespace = server_owns(root / STATE), root / STATE
             if problem:
                 raise AssertionError(problem)
-            knobs["LTLNAV_DATABASE_URL"] = f"sqlite:///{root / STATE / 'ltlnav.db'}"
+            if kind == "embedded":
+                knobs["LTLNAV_DATABASE_URL"] = f"sqlite:///{root / STATE / 'ltlnav.db'}"
         if kind == "redis-postgresql":
             import redis
 
-            database_url = stack.enter_context(postgres_database("ltlnav_bench_faults"))
+            database_url = stack.enter_context(
+                postgres_database("ltlnav_bench_faults", tablespace=tablespace)
+            )
             redis_url = f"redis://127.0.0.1:6379/{redis_db}"
             redis.Redis.from_url(redis_url).flushdb()
         cluster = make_cluster(kind, root, knobs, database_url, redis_url, proxy_database=proxy)
@@ -174,9 +186,6 @@ def main() -> None:
             print(f"{kind}: skipped, the servers do not answer ({why})", flush=True)
             continue
         for name in names:
-            if name == "statedisk" and kind != "embedded":
-                print(f"# {kind} {name}: embedded only (a state file on a disk)", flush=True)
-                continue
             started = time.monotonic()
             with tempfile.TemporaryDirectory(prefix=f"ltlnav-faults-{name}-") as folder:
                 root = Path(folder)

@@ -11,6 +11,7 @@ full scale. Settings come from ``FAST`` (heartbeat 0.3 s, stale after 3 s, 3 att
 
 from __future__ import annotations
 
+import tempfile
 import time
 from collections.abc import Iterator
 from dataclasses import replace
@@ -30,6 +31,8 @@ from tests.service.fault_hooks.cluster import (
     ensure_redis,
     free_port,
     make_cluster,
+    postgres_database,
+    server_owns,
     small_filesystem,
 )
 from tests.service.fault_hooks.scenarios import TEST, FaultRow
@@ -193,6 +196,37 @@ def test_a_full_disk_under_the_sqlite_state_mid_training(tmp_path: Path) -> None
             assert "database or disk is full" in cluster.tail(10**6), cluster.tail()
         finally:
             cluster.stop()
+
+
+@pytest.mark.slow
+def test_a_full_disk_under_the_postgresql_tablespace_mid_training(
+    tmp_path: Path, postgres_url: str
+) -> None:
+    """The mission database's files on a filesystem of their own (a tablespace on a 32 MB
+    tmpfs) full for 15 s mid-training: the server refuses every write that needs space
+    ("could not extend file ...: No space left on device"), while its log and other databases
+    carry on. The mission completes and nothing is written twice."""
+    # not under tmp_path: the server's user must be able to reach it (pytest's folders are 0700)
+    files = Path(tempfile.mkdtemp(prefix="ltlnav-tablespace-"))
+    try:
+        with small_filesystem(files, megabytes=32) as problem:
+            if problem or (problem := server_owns(files)):
+                pytest.skip(problem)
+            with postgres_database("ltlnav_test_full", tablespace=files) as database_url:
+                cluster = make_cluster(
+                    "redis-postgresql", tmp_path, FAST, database_url, _redis_url()
+                )
+                try:
+                    scale = replace(TEST, budget=600)
+                    row = scenarios.database_outage(cluster, scale, full_disk=files)
+                    assert_recovered(row, cluster)
+                    assert row.facts["filled bytes"] > 0, row
+                    assert "No space left on device" in cluster.tail(10**6), cluster.tail()
+                finally:
+                    cluster.stop()
+                    cluster.db.dispose()
+    finally:
+        files.rmdir()
 
 
 @pytest.mark.slow

@@ -369,18 +369,44 @@ def ensure_redis(url: str) -> str:
     return "Redis is not running on 127.0.0.1:6379 and did not start"
 
 
+def server_owns(folder: Path) -> str:
+    """Give ``folder`` to the user the local PostgreSQL server runs as (its data directory's
+    owner), so that it can hold a tablespace; why it cannot ("" when done)."""
+    admin = create_engine(f"{PG_SERVER}/postgres")
+    try:
+        with admin.connect() as connection:
+            data = Path(connection.execute(text("SHOW data_directory")).scalar_one())
+        owner = data.stat()
+        os.chown(folder, owner.st_uid, owner.st_gid)
+    except OSError as error:
+        return f"the PostgreSQL server's files are not this machine's to give ({error})"
+    finally:
+        admin.dispose()
+    return ""
+
+
 @contextmanager
-def postgres_database(prefix: str = "ltlnav_faults") -> Iterator[str]:
-    """A fresh, migrated PostgreSQL database on 127.0.0.1:5432 (dropped afterwards)."""
+def postgres_database(
+    prefix: str = "ltlnav_faults", tablespace: Path | None = None
+) -> Iterator[str]:
+    """A fresh, migrated PostgreSQL database on 127.0.0.1:5432 (dropped afterwards); with
+    ``tablespace`` (an empty folder the server owns: :func:`server_owns`) its files live there,
+    in a tablespace of its own (dropped too)."""
     name = f"{prefix}_{uuid.uuid4().hex[:10]}"
     admin = create_engine(f"{PG_SERVER}/postgres", isolation_level="AUTOCOMMIT")
     try:
         with admin.connect() as connection:
-            connection.execute(text(f'CREATE DATABASE "{name}"'))
+            if tablespace is None:
+                connection.execute(text(f'CREATE DATABASE "{name}"'))
+            else:
+                connection.execute(text(f"CREATE TABLESPACE \"{name}\" LOCATION '{tablespace}'"))
+                connection.execute(text(f'CREATE DATABASE "{name}" TABLESPACE "{name}"'))
         url = f"{PG_SERVER}/{name}"
         upgrade(url)
         yield url
     finally:
         with admin.connect() as connection:
             connection.execute(text(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)'))
+            if tablespace is not None:
+                connection.execute(text(f'DROP TABLESPACE IF EXISTS "{name}"'))
         admin.dispose()
