@@ -141,12 +141,13 @@ def plan_mission(
     """
     opts = options if options is not None else PlannerSpec()
     # An iteration cap, not the CPU time limit, ends each attempt with a margin, so the choice
-    # of the clearance is the same on every machine.
+    # of the clearance is the same on every machine. An attempt also ends once the grid of
+    # corridors finds the next regions cut off at its clearance (planner/search/corridor.py).
     capped = opts.model_copy(update={"max_iterations": min(opts.max_iterations, MARGIN_ITERATIONS)})
     margin = opts.margin or 0.0
     for share in MARGIN_SHARES if margin else ():
         try:
-            return _plan(world, task, start, clearance + share * margin, capped, nba)
+            return _plan(world, task, start, clearance + share * margin, capped, nba, True)
         except PlanningError:
             pass  # too narrow somewhere with this margin: try less of it
     return _plan(world, task, start, clearance, opts, nba)
@@ -159,6 +160,7 @@ def _plan(
     clearance: float,
     opts: PlannerSpec,
     nba: Buchi | None,
+    give_up_cut_off: bool = False,
 ) -> MissionPlan:
     t0 = time.process_time()
     if nba is None:
@@ -168,7 +170,9 @@ def _plan(
     pruned = restrict_to_reachable(pruned, world, np.asarray(start, dtype=float), clearance)
     t_translate = time.process_time() - t0
     rng = np.random.default_rng(opts.seed)
-    lasso = plan_lasso(world, pruned, np.asarray(start, dtype=float), clearance, opts, rng)
+    lasso = plan_lasso(
+        world, pruned, np.asarray(start, dtype=float), clearance, opts, rng, give_up_cut_off
+    )
     subtasks = decompose(lasso, pruned, world)
     eta = opts.eta if opts.eta is not None else default_eta(world)
     return MissionPlan(

@@ -59,6 +59,9 @@ class Growth:
         self.progress_at = 0
         """Iteration at which the least automaton distance in the tree last fell."""
         self.corridor_tried: set[int] = set()
+        self.cut_off = False
+        """Whether the last corridors sought found every next region cut off from the tree on
+        the grid (whose cells keep the clearance at their centre: a hint, not a proof)."""
 
     def closest_states(self) -> tuple[int, list[int]]:
         """Least automaton distance to the goal among the tree's states, and those states."""
@@ -114,16 +117,19 @@ class Growth:
         if dmin <= 0 or self.iterations - self.progress_at < CORRIDOR_AFTER:
             return []
         self.progress_at = self.iterations
-        added = 0
-        for q in states:
-            if q not in self.corridor_tried:
-                self.corridor_tried.add(q)
-                added += sum(self._corridor(q, c) for c in self.paths.advancing_cubes(q, self.dist))
-        return self.flood() if added else []
+        laid = [
+            self._corridor(q, cube)
+            for q in states
+            if q not in self.corridor_tried
+            for cube in self.paths.advancing_cubes(q, self.dist)
+        ]
+        self.corridor_tried.update(states)
+        self.cut_off = bool(laid) and all(n is None for n in laid)
+        return self.flood() if any(laid) else []
 
-    def _corridor(self, q: int, cube: Cube) -> int:
+    def _corridor(self, q: int, cube: Cube) -> int | None:
         """Lay the shortest free-cell corridor from the points of state ``q`` to a cell whose
-        label satisfies ``cube``; returns the points added."""
+        label satisfies ``cube``; returns the points added (None: no free cells join them)."""
         tree = self.tree
         grid = self.grids.get(tree.clearance)
         if grid is None:
@@ -132,7 +138,7 @@ class Growth:
         cells = grid.cells(tree.pos[pids])
         found = grid.path(cells, region_cells(grid, tree.oracle, cube))
         if found is None:
-            return 0
+            return None if grid.free[cells].any() else 0
         origin, centres = found
         return lay(tree, int(pids[np.flatnonzero(cells == origin)[0]]), centres, tree.eta)
 

@@ -85,9 +85,11 @@ class _Planner:
         rng: np.random.Generator,
         lift: bool = True,
         seed: bool = True,
+        give_up_cut_off: bool = False,
     ) -> None:
         self.t0 = time.process_time()
         self.seed = seed
+        self.give_up_cut_off = give_up_cut_off
         self.world, self.nba, self.options = world, nba, options
         self.clearance = clearance
         self.start = np.asarray(start, dtype=float).reshape(-1)
@@ -202,6 +204,11 @@ class _Planner:
                 self._grow_prefix(20, until_goal=True)
                 self.prefix.flood_if_due()
                 self.prefix.corridor_if_stuck()
+                if self.give_up_cut_off and self.prefix.cut_off:
+                    raise PlanningError(
+                        "the next regions look cut off at this clearance: no path of grid "
+                        "cells keeping it joins them to the tree"
+                    )
 
     def refine(self, seconds: float, iterations: int | None = None) -> None:
         """Anytime phase: grow the prefix tree for ``seconds`` CPU seconds, or for
@@ -388,6 +395,7 @@ def plan_lasso(
     clearance: float,
     options: PlannerSpec,
     rng: np.random.Generator | None = None,
+    give_up_cut_off: bool = False,
 ) -> Lasso:
     """TL-RRT* lasso for the (pruned) automaton ``nba`` from ``start`` in ``world``.
 
@@ -396,6 +404,10 @@ def plan_lasso(
     without a lasso (the message names the regions never reached). The anytime phase runs for
     ``refine_iterations`` iterations, so the plan is deterministic for a seed; with
     ``refine_seconds`` set it runs for that many CPU seconds and depends on the machine.
+    ``give_up_cut_off``: raise PlanningError as soon as the grid of corridors finds the next
+    regions cut off from the prefix tree (for an attempt that another, with less clearance,
+    follows), instead of spending the budget.
     """
     gen = rng if rng is not None else np.random.default_rng(options.seed)
-    return _Planner(world, nba, start, clearance, options, gen).run()
+    planner = _Planner(world, nba, start, clearance, options, gen, give_up_cut_off=give_up_cut_off)
+    return planner.run()

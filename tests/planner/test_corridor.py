@@ -4,10 +4,14 @@ a few centimetres wider than the robot finds its way in a few hundred iterations
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
+import planner.plan as plan_module
 import planner.search.growth as growth
+from planner.errors import PlanningError
 from planner.geometry.labels import LabelOracle
 from planner.geometry.shapes import Ball, Box, Polygon
 from planner.geometry.world import World
@@ -105,3 +109,41 @@ def test_tl_rrt_star_behind_a_narrow_door_lays_a_corridor(
     assert with_corridor.stats["prefix_iterations"] <= growth.CORRIDOR_AFTER + 100
     assert sampling_alone.stats["prefix_iterations"] > 1000
     assert world.segments_free(with_corridor.prefix[:-1], with_corridor.prefix[1:], CLEARANCE).all()
+
+
+def test_an_attempt_with_a_margin_gives_up_once_the_goal_is_cut_off_at_its_clearance(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A door of 0.96 m in a 30 x 30 m world: a robot of radius 0.2 passes it with half its
+    0.3 m margin, not with all of it (1 m). The door's walls, inflated by 0.5 m, overlap in a
+    band 4 cm high, thinner than a cell of the sound reachability proof (6 cm), which cannot
+    close it, so the attempt with the whole margin used to spend its 10,000 iterations. Now it
+    ends when the corridor grid (a row of cell centres lies in the band) finds the goal cut
+    off, and the plan keeps half the margin."""
+    below = 14.55  # the band 15.01-15.05 holds the cell centres at y = 15.03
+    world = World(
+        np.array([[0.0, 30.0], [0.0, 30.0]]),
+        [
+            Box(np.array([14.0, 0.0]), np.array([16.0, below])),
+            Box(np.array([14.0, below + 0.96]), np.array([16.0, 30.0])),
+        ],
+        {"g": Ball(np.array([25.0, 15.0]), 1.0)},
+    )
+    endings: list[str] = []
+    real = plan_module.plan_lasso
+
+    def recorded(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return real(*args, **kwargs)
+        except PlanningError as error:
+            endings.append(str(error))
+            raise
+
+    monkeypatch.setattr(plan_module, "plan_lasso", recorded)
+    options = PlannerSpec(seed=0, margin=0.3, refine_iterations=0, shortcut=False)
+
+    start = np.array([5.0, 15.0])
+    plan = plan_module.plan_mission(world, "[]!obstacle && <>g", start, 0.2, options)
+
+    assert plan.clearance == pytest.approx(0.35)
+    assert len(endings) == 1 and "cut off at this clearance" in endings[0], endings
