@@ -297,6 +297,7 @@ def curves(
         axes.plot(steps, np.nanmedian(grid, axis=0), label=method)
         axes.fill_between(steps, np.nanmin(grid, axis=0), np.nanmax(grid, axis=0), alpha=0.2)
     axes.set(xlabel="env steps", ylabel="success rate", title=f"{task.label} ({protocol})")
+    axes.set_ylim(-0.02, 1.02)
     if axes.lines:
         axes.legend()
     else:
