@@ -108,17 +108,23 @@ class Degeneralizer:
         final state is reachable (so no acceptance set can get worse) and ``j <= j' < r``
         or ``j = j' = r``. Removing such "little brothers" preserves the language.
         """
+        free = self.vwaa.final_free
+        # ``other <= targets`` and ``targets - other <= free`` imply that the two agree outside
+        # ``free``: only states of the same group can simulate each other (for a conjunction
+        # of k eventualities, 2^k successors in 2^k groups instead of 4^k pairs).
+        groups: dict[frozenset[int], list[BaState]] = {}
+        for key in out:
+            groups.setdefault(key[0] - free, []).append(key)
         pruned: dict[BaState, list[Cube]] = {}
         for key, cubes in out.items():
             targets, level = key
             better = [
                 c
-                for (other, other_level), other_cubes in out.items()
+                for other, other_level in groups[targets - free]
                 if (other, other_level) != key
                 and other <= targets
-                and targets - other <= self.vwaa.final_free
                 and (level <= other_level < self.r or level == other_level == self.r)
-                for c in other_cubes
+                for c in out[(other, other_level)]
             ]
             kept = [c for c in cubes if not covers(better, c)] if better else cubes
             if kept:
