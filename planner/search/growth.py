@@ -4,7 +4,8 @@
 to its goal states and the biased sampling of the paper: with probability ``bias`` it extends,
 from its nearest node in the automaton state closest to the goal, toward a point of the region
 whose label enables the next transition on a shortest automaton path; otherwise toward a uniform
-free point. :class:`SuffixGrowth` is the tree rooted at an accepting prefix node ``(x*, q*)``,
+free point. A tree that comes no closer to its goal for a while lays a corridor of grid cells
+to the next region (:mod:`planner.search.corridor`). :class:`SuffixGrowth` is the tree rooted at an accepting prefix node ``(x*, q*)``,
 started from the prefix tree's roadmap (:mod:`planner.search.roadmap`), whose goal is a node
 that steps back to ``(x*, q*)``: it records those closing nodes and the cheapest cycle.
 """
