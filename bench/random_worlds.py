@@ -149,12 +149,17 @@ def _task(rng: np.random.Generator, goals: int, infinite: bool) -> str:
     return f"[]!obstacle && <>({nested})"
 
 
+GOAL_DRAWS = 200
+"""Draws per goal before a crowded world keeps the goals that fit (at least 3)."""
+
+
 def _free_point(world: World, rng: np.random.Generator, clearance: float) -> np.ndarray:
     return np.asarray(world.sample_free(rng, 1, clearance)[0])
 
 
 def random_mission(kind: str, seed: int, infinite: bool, goals: int | None = None) -> Document:
-    """A mission of world kind ``kind`` for ``seed``; 3 to 12 goals unless ``goals`` is given."""
+    """A mission of world kind ``kind`` for ``seed``; 3 to 12 goals unless ``goals`` is given
+    (fewer when no more fit: ``GOAL_DRAWS``)."""
     rng = np.random.default_rng(seed)
     extent, obstacles = KINDS[kind](rng)
     dim = len(extent)
@@ -165,7 +170,9 @@ def random_mission(kind: str, seed: int, infinite: bool, goals: int | None = Non
     goal_r = 0.5 if dim == 3 else 1.0
     start = _free_point(world, rng, RADIUS + 0.3)
     regions: Document = {}
-    while len(regions) < count:
+    for _ in range(GOAL_DRAWS * count):
+        if len(regions) == count:
+            break
         c = _free_point(world, rng, goal_r + RADIUS)
         others = [np.array(r["ball"]["center"]) for r in regions.values()]
         if np.linalg.norm(c - start) < 2 * goal_r + 1 or any(
@@ -177,7 +184,9 @@ def random_mission(kind: str, seed: int, infinite: bool, goals: int | None = Non
         w = WorldSpec.model_validate({**base, "regions": trial}).build()
         if not unreachable_regions(w, start, RADIUS, [name]):
             regions = trial
-    task = _task(rng, count, infinite)
+    if len(regions) < 3:
+        raise ValueError(f"{kind} world of seed {seed}: only {len(regions)} goals fit")
+    task = _task(rng, len(regions), infinite)
     return _document(kind, seed, {**base, "regions": regions}, start.tolist(), task)
 
 
