@@ -344,13 +344,14 @@ class ProductTree:
         labels = self.label_ids[near]
         near_l = near.tolist()
         lifted: list[int] = []
+        # The neighbours' nodes and costs, kept up to date below as nodes are lifted and
+        # reparented. A reparented node's descendants get cheaper too and are not updated:
+        # their stale (higher) costs only let through candidates that the exact test drops.
+        nodes = self.node_at[near]
+        current = np.where(nodes >= 0, self.cost[nodes], math.inf if self.lift else -math.inf)
         for nid_new in new:
             q2 = self.node_q[nid_new]
             through = self.cost[nid_new] + d
-            nodes = self.node_at[near]
-            current = np.where(nodes >= 0, self.cost[nodes], math.inf)
-            if not self.lift:
-                current = np.where(nodes >= 0, current, -math.inf)
             # (k, Q) successors of q2 only: (k, Q, Q) would be large for an automaton of a
             # finite any-order task (2^goals states).
             reach = self.table.reach[labels, q2, :]
@@ -359,9 +360,12 @@ class ProductTree:
                 m = int(nodes[i, q])
                 c = float(through[i])
                 if m < 0:
-                    lifted.append(self.add_node(near_l[i], q, nid_new, c))
+                    nodes[i, q] = m = self.add_node(near_l[i], q, nid_new, c)
+                    lifted.append(m)
+                    current[i, q] = c
                 elif c < self.cost[m] - _EPS:
                     self.reparent(m, nid_new, c)
+                    current[i, q] = c
         return lifted
 
     def reparent(self, nid: int, parent: int, cost: float) -> None:
