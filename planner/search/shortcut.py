@@ -58,6 +58,18 @@ def _length(x: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(x, axis=0), axis=1).sum()) if len(x) > 1 else 0.0
 
 
+def _two_states_end(q: list[int], i: int) -> int:
+    """The last waypoint a shortcut from waypoint ``i`` may reach: the states it skips,
+    ``q[i..j-1]``, must be at most two (those of its two ends), so none reaches past the first
+    waypoint of a third state."""
+    seen = {q[i]}
+    for k in range(i + 1, len(q)):
+        seen.add(q[k])
+        if len(seen) == 3:
+            return k
+    return len(q) - 1
+
+
 class Ops:
     """The local moves of polishing and their validity checks (see the module docstring)."""
 
@@ -85,7 +97,7 @@ class Ops:
         keep = [0]
         i = 0
         while i < last:
-            js = np.arange(i + 2, last + 1)
+            js = np.arange(i + 2, _two_states_end(q, i) + 1)
             best = i + 1
             if js.size:
                 geo = self.ok(np.broadcast_to(x[i], (js.size, x.shape[1])), x[js])
