@@ -86,8 +86,8 @@ class FreeGrid:
 
     def path(self, sources: np.ndarray, targets: np.ndarray) -> tuple[int, np.ndarray] | None:
         """The shortest free-cell path from any of the cells ``sources`` to any of the cells
-        ``targets``: the index in ``sources`` it starts from and the centres of its cells after
-        that one; None when no free path joins them."""
+        ``targets``: the cell it starts from and the centres of its cells after that one; None
+        when no free path joins them."""
         sources = np.unique(sources[self.free[sources]])
         targets = targets[self.free[targets]]
         if sources.size == 0 or targets.size == 0:

@@ -5,9 +5,10 @@ to its goal states and the biased sampling of the paper: with probability ``bias
 from its nearest node in the automaton state closest to the goal, toward a point of the region
 whose label enables the next transition on a shortest automaton path; otherwise toward a uniform
 free point. A tree that comes no closer to its goal for a while lays a corridor of grid cells
-to the next region (:mod:`planner.search.corridor`). :class:`SuffixGrowth` is the tree rooted at an accepting prefix node ``(x*, q*)``,
-started from the prefix tree's roadmap (:mod:`planner.search.roadmap`), whose goal is a node
-that steps back to ``(x*, q*)``: it records those closing nodes and the cheapest cycle.
+to the next region (:mod:`planner.search.corridor`). :class:`SuffixGrowth` is the tree rooted
+at an accepting prefix node ``(x*, q*)``, started from the prefix tree's roadmap
+(:mod:`planner.search.roadmap`), whose goal is a node that steps back to ``(x*, q*)``: it
+records those closing nodes and the cheapest cycle.
 """
 
 from __future__ import annotations
@@ -28,6 +29,9 @@ FLOOD_GROWTH = 1.2
 CORRIDOR_AFTER = 300
 """Iterations without a state closer to the goal before the tree seeks a corridor to the next
 region through the free cells of a grid (:mod:`planner.search.corridor`)."""
+CORRIDOR_STATES = 4
+"""Automaton states that get corridors per call (each search costs a shortest path over the
+grid: a tenth of a second)."""
 
 
 class Growth:
@@ -118,13 +122,11 @@ class Growth:
         if dmin <= 0 or self.iterations - self.progress_at < CORRIDOR_AFTER:
             return []
         self.progress_at = self.iterations
-        laid = [
-            self._corridor(q, cube)
-            for q in states
-            if q not in self.corridor_tried
-            for cube in self.paths.advancing_cubes(q, self.dist)
-        ]
-        self.corridor_tried.update(states)
+        # A few states per call: an any-order task has hundreds at the same distance.
+        todo = [q for q in states if q not in self.corridor_tried][:CORRIDOR_STATES]
+        cubes = [(q, cube) for q in todo for cube in self.paths.advancing_cubes(q, self.dist)]
+        laid = [self._corridor(q, cube) for q, cube in cubes]
+        self.corridor_tried.update(todo)
         self.cut_off = bool(laid) and all(n is None for n in laid)
         return self.flood() if any(laid) else []
 
