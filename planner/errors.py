@@ -61,3 +61,17 @@ class AutomatonTooLargeError(PlanningError):
     def __init__(self, max_states: int) -> None:
         super().__init__(f"its Büchi automaton grows past {max_states} states while translating")
         self.max_states = max_states
+
+
+def unsatisfiable(formula_has_run: bool) -> PlanningError:
+    """The error of a task with no accepting run in this world; ``formula_has_run`` tells whether
+    the formula's own automaton has one (the world is to blame) or not (a contradiction)."""
+    if not formula_has_run:
+        why = "the formula itself has no satisfying behaviour (it is a contradiction)"
+    else:
+        why = (
+            "every accepting run of its automaton needs labels that no collision-free "
+            "point of this world carries together (e.g. two disjoint regions at once, "
+            "being inside an obstacle, or a region the robot cannot fit in)"
+        )
+    return PlanningError(f"the task is unsatisfiable in this world: {why}")

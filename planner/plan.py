@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from planner.decompose import SubTask, decompose
-from planner.errors import PlanningError
+from planner.errors import PlanningError, unsatisfiable
 from planner.geometry.world import World
 from planner.ltl.automaton import Buchi
 from planner.ltl.formula import check_mission_formula, parse
@@ -27,7 +27,7 @@ from planner.ltl.semantics import holds_on_lasso
 from planner.ltl.translate import translate
 from planner.search.planner_spec import PlannerSpec
 from planner.search.reachability import restrict_to_reachable
-from planner.search.tl_rrt_star import Lasso, default_eta, plan_lasso, unsatisfiable
+from planner.search.tl_rrt_star import Lasso, default_eta, plan_lasso
 
 MARGIN_ITERATIONS = 10_000
 """Iterations per tree each attempt with a margin may spend before the plan tries less."""

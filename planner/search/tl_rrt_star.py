@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planner.errors import PlanningError
+from planner.errors import PlanningError, unsatisfiable
 from planner.geometry.labels import LabelOracle
 from planner.geometry.world import World
 from planner.ltl.automaton import Buchi
@@ -372,20 +372,6 @@ def make_lasso(
         suffix_cost=sc,
         cost=prefix_weight * pc + (1.0 - prefix_weight) * sc,
     )
-
-
-def unsatisfiable(formula_has_run: bool) -> PlanningError:
-    """The error of a task with no accepting run in this world; ``formula_has_run`` tells whether
-    the formula's own automaton has one (the world is to blame) or not (a contradiction)."""
-    if not formula_has_run:
-        why = "the formula itself has no satisfying behaviour (it is a contradiction)"
-    else:
-        why = (
-            "every accepting run of its automaton needs labels that no collision-free "
-            "point of this world carries together (e.g. two disjoint regions at once, "
-            "being inside an obstacle, or a region the robot cannot fit in)"
-        )
-    return PlanningError(f"the task is unsatisfiable in this world: {why}")
 
 
 def plan_lasso(
