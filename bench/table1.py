@@ -317,8 +317,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument(
         "--records",
         type=Path,
-        default=ROOT / "bench" / "table1",
-        help="the finished runs' figures (small JSON; the table is printed from them)",
+        help="the finished runs' figures (small JSON; the table is printed from them); default "
+        "bench/table1/, or OUT/records with --budget (a smoke run's must not pass for the table's)",
     )
     p.add_argument("--budget", type=int, help="steps per sub-task of every row (smoke runs)")
     p.add_argument("--report", action="store_true", help="re-print TABLE1.md from disk")
@@ -326,6 +326,8 @@ def main(argv: list[str] | None = None) -> None:
     tasks = [t for t in TASKS if t.name in args.rows]
     if args.budget is not None:
         tasks = [Task(t.name, t.label, args.budget) for t in tasks]
+    if args.records is None:
+        args.records = ROOT / "bench" / "table1" if args.budget is None else args.out / "records"
     if not args.report:
         for task in tasks:
             for protocol in args.protocols:
@@ -334,6 +336,7 @@ def main(argv: list[str] | None = None) -> None:
                     for method in args.methods:
                         train(task, method, protocol, seed, args.out, args.jobs)
     text = report(tasks, args.methods, args.protocols, args.seeds, args.out, args.records)
+    args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "TABLE1.md").write_text(text)
     for task in tasks:
         for protocol in args.protocols:
