@@ -89,9 +89,14 @@ def subtask_count(task: Task, out: Path) -> int:
     return len(jobs)
 
 
-def train(task: Task, method: str, protocol: str, seed: int, out: Path, jobs: int) -> None:
-    """Train one run unless its ``wall.json`` says it finished; measure its wall time."""
+def train(
+    task: Task, method: str, protocol: str, seed: int, out: Path, records: Path, jobs: int
+) -> None:
+    """Train one run unless its record or its ``wall.json`` says it finished (on this machine
+    or another); measure its wall time."""
     row = run_row(task, method, protocol, seed)
+    if (records / f"{row.folder}.json").is_file():
+        return
     if method == "g-rrt":
         row = replace(row, timesteps=task.budget * subtask_count(task, out))
     record = out / row.folder / "wall.json"
@@ -334,7 +339,7 @@ def main(argv: list[str] | None = None) -> None:
                 zero_control(task, protocol, args.out, args.records)
                 for seed in args.seeds:
                     for method in args.methods:
-                        train(task, method, protocol, seed, args.out, args.jobs)
+                        train(task, method, protocol, seed, args.out, args.records, args.jobs)
     text = report(tasks, args.methods, args.protocols, args.seeds, args.out, args.records)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "TABLE1.md").write_text(text)

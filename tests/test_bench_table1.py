@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
@@ -89,3 +90,24 @@ def test_the_figure_is_drawn_from_the_records_alone(tmp_path: Path) -> None:
     assert grid.tolist() == [[0.5, 1.0, 1.0], [0.0, 0.0, 0.0]]  # sub-task 0 stopped at 10k
     assert table1.method_curve(TASK, "ned", "paper", [0], out, records) is None
     assert picture.read_bytes().startswith(b"\x89PNG")
+
+
+def test_a_run_with_a_record_is_not_trained_again_where_its_folder_is_gone(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    out, records = tmp_path / "runs", tmp_path / "records"
+    finished_run(out, "rrt", "shaped")
+    table1.run_figures(TASK, "rrt", "shaped", 0, out, records)
+    shutil.rmtree(out)
+    trained: list[str] = []
+
+    def run_rows(rows: list[table1.Row], out: Path, jobs: int) -> None:
+        trained.extend(row.method for row in rows)
+        (out / rows[0].folder).mkdir(parents=True)
+
+    monkeypatch.setattr(table1, "run_rows", run_rows)
+
+    table1.train(TASK, "rrt", "shaped", 0, out, records, jobs=2)
+    table1.train(TASK, "tl", "shaped", 0, out, records, jobs=2)
+
+    assert trained == ["tl"]  # the one without a record
