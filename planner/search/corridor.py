@@ -27,10 +27,7 @@ from planner.geometry.labels import LabelOracle
 from planner.geometry.world import World
 from planner.ltl.guard import Cube
 from planner.search.product_tree import ProductTree
-from planner.search.reachability import CellGrid
-
-MAX_CELLS = 250_000
-"""Cells of the grid over the workspace bounds (a cell edge of 4 cm in a 20 x 20 m world)."""
+from planner.search.reachability import MAX_CELLS, CellGrid
 
 
 class FreeGrid:
