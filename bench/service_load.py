@@ -180,7 +180,9 @@ class LoadResult:
     the first submission (a late loop delays the replies it reads, and so every GET time)."""
     poll_seconds: float = 0.0
     api_cpu_seconds: float = 0.0
-    """CPU time (user + system) of the API process from the first POST to the pollers' end."""
+    """CPU time (user + system) of the API's processes from the first POST to the pollers'
+    end."""
+    api_processes: int = 1
     samples: list[Sample] = field(default_factory=list)
     duplicate_evaluations: int = 0
     duplicate_checkpoints: int = 0
@@ -298,13 +300,37 @@ class Probe:
             result.wall = (_timestamp(last) - _timestamp(first)).total_seconds()
 
 
-def cpu_seconds(pid: int) -> float:
-    """User + system CPU seconds of process ``pid`` so far (Linux ``/proc``; 0 elsewhere)."""
+def _stat(pid: int) -> list[str] | None:
+    """The fields of ``/proc/PID/stat`` after the command name (None: gone, or not Linux)."""
     try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     except OSError:
-        return 0.0
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        return None
+
+
+def _descendants(pid: int) -> list[int]:
+    parents: dict[int, list[int]] = {}
+    for entry in Path("/proc").glob("[0-9]*"):
+        fields = _stat(int(entry.name))
+        if fields is not None:
+            parents.setdefault(int(fields[1]), []).append(int(entry.name))
+    found, todo = [], [pid]
+    while todo:
+        children = parents.get(todo.pop(), [])
+        found += children
+        todo += children
+    return found
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds so far of process ``pid`` and its live descendants (the API's
+    processes when it runs in several; Linux ``/proc``; 0 elsewhere)."""
+    total = 0
+    for member in (pid, *_descendants(pid)):
+        fields = _stat(member)
+        if fields is not None:
+            total += int(fields[11]) + int(fields[12])
+    return total / os.sysconf("SC_CLK_TCK")
 
 
 def _timestamp(value: Any) -> Any:
@@ -450,26 +476,33 @@ class Traffic:
             await asyncio.gather(*pollers, lag)
 
 
-def run_load(args: argparse.Namespace, backend: str, parent: Path) -> LoadResult:
-    """One backend (``embedded`` or ``servers``): a fresh state, the API, two workers, the
-    traffic, the accounting; every process stopped before it returns."""
+def run_load(
+    args: argparse.Namespace, backend: str, parent: Path, api_processes: int = 1, run: int = 0
+) -> LoadResult:
+    """One backend (``embedded`` or ``servers``) with the API in ``api_processes`` processes:
+    a fresh state, the API, two workers, the traffic, the accounting; every process stopped
+    before it returns."""
     servers = backend == "servers"
     options = argparse.Namespace(
         timesteps=TINY_LOAD["training"]["n_timesteps"],
         redis=args.redis if servers else None,
         postgres=args.postgres if servers else None,
     )
-    result = LoadResult(backend, args.missions, load_before=os.getloadavg())
+    result = LoadResult(
+        backend, args.missions, load_before=os.getloadavg(), api_processes=api_processes
+    )
     extra = {
         "LTLNAV_API_KEYS": json.dumps(KEYS),
         "LTLNAV_QUOTA_ACTIVE_MISSIONS": "0",
         "LTLNAV_QUOTA_SUBMISSIONS_PER_MINUTE": "0",
         "LTLNAV_BROKER_CLEANUP_SECONDS": str(args.cleanup),
         "LTLNAV_KEEP_FAILED_DAYS": "0",
+        "LTLNAV_API_PROCESSES": str(api_processes),
     }
     began = time.monotonic()
     with ExitStack() as stack:
-        layout = stack.enter_context(phase_layout(parent, f"load-{backend}", options))
+        name = f"load-{backend}-{run}"
+        layout = stack.enter_context(phase_layout(parent, name, options))
         layout = dataclasses.replace(layout, extra=extra)
         api: list[subprocess.Popen[bytes]] = []
         url = stack.enter_context(api_server(layout, api))  # migrated once /healthz answers
@@ -549,6 +582,7 @@ def table_rows(result: LoadResult) -> list[tuple[str, str]]:
     failed = statuses.get("failed", 0)
     expected_failures = sum(1 for kind in result.kinds.values() if kind != "tiny")
     return [
+        ("API processes", str(result.api_processes)),
         ("missions submitted / accounted for", f"{len(result.kinds)} / {result.ended}"),
         ("done", str(statuses.get("done", 0))),
         (
@@ -664,6 +698,14 @@ def parser() -> argparse.ArgumentParser:
         choices=["embedded", "servers"],
         help="default: embedded, and servers when --redis and --postgres are given",
     )
+    parser.add_argument(
+        "--api-processes",
+        type=int,
+        nargs="+",
+        default=[1],
+        help="API processes (LTLNAV_API_PROCESSES); several values run each backend once per "
+        "value, side by side in the table",
+    )
     return parser
 
 
@@ -677,10 +719,12 @@ def main(argv: list[str] | None = None) -> list[LoadResult]:
         raise SystemExit("--backends servers needs --redis and --postgres")
     command = shlex.join([Path(sys.executable).name, *sys.argv])
     print(machine_note(), flush=True)
-    results = []
+    results: list[LoadResult] = []
     with tempfile.TemporaryDirectory(prefix="ltlnav-load-") as tmp:
         for backend in backends:
-            results.append(run_load(args, backend, Path(tmp)))
+            for processes in args.api_processes:
+                run = len(results)
+                results.append(run_load(args, backend, Path(tmp), processes, run))
     print(f"\nltlnav service load: {args.missions} tiny missions per backend, 10 API keys, ")
     print(
         f"{WORKERS} x `{f'nice -n {args.nice} ' if args.nice else ''}ltlnav worker "

@@ -4,6 +4,7 @@ lives beside it: ``service.train_progress``, ``service.progress_printer``)."""
 from __future__ import annotations
 
 import json
+import os
 import sys
 from enum import StrEnum
 from pathlib import Path
@@ -263,6 +264,14 @@ def serve(
     no_worker: Annotated[
         bool, typer.Option("--no-worker", help="Serve the API only (workers run elsewhere).")
     ] = False,
+    api_processes: Annotated[
+        int | None,
+        typer.Option(
+            "--api-processes",
+            min=1,
+            help="Processes serving the API on the port (default LTLNAV_API_PROCESSES, 1).",
+        ),
+    ] = None,
 ) -> None:
     """Migrate the database, then run the API and one embedded worker until Ctrl-C. Without
     API keys (LTLNAV_API_KEYS) only a loopback address may be bound."""
@@ -270,6 +279,9 @@ def serve(
     from service.serve import serve as run
     from service.settings import Settings
 
+    if api_processes is not None:
+        # The API's processes read their settings from the environment.
+        os.environ["LTLNAV_API_PROCESSES"] = str(api_processes)
     settings = Settings()
     try:
         refuse_open_exposure(settings, host or settings.host)

@@ -1,6 +1,6 @@
-"""``ltlnav serve``: the API (uvicorn) in this process and one embedded Celery worker in a
-child process, both stopped cleanly on Ctrl-C or SIGTERM. The open API (no keys) binds
-loopback addresses only."""
+"""``ltlnav serve``: the API (uvicorn) in this process, or in ``api_processes`` children of it,
+and one embedded Celery worker in a child process, all stopped cleanly on Ctrl-C or SIGTERM.
+The open API (no keys) binds loopback addresses only."""
 
 from __future__ import annotations
 
@@ -98,6 +98,26 @@ def _terminate(signum: int, frame: FrameType | None) -> None:
     raise KeyboardInterrupt
 
 
+def run_api(settings: Settings, host: str, port: int) -> None:
+    """The API on ``host:port`` until a signal: in this process, or in
+    ``settings.api_processes`` uvicorn workers, which build it from the environment's
+    settings (``settings`` must be those)."""
+    from service.api.app import create_app
+
+    if settings.api_processes == 1:
+        app = create_app(settings)
+        uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level="info")).run()
+        return
+    uvicorn.run(
+        "service.api.app:create_app",
+        factory=True,
+        host=host,
+        port=port,
+        workers=settings.api_processes,
+        log_level="info",
+    )
+
+
 def serve(
     settings: Settings,
     host: str,
@@ -108,12 +128,9 @@ def serve(
 ) -> None:
     """Migrate, start the worker (unless ``worker`` is False) and serve the API until a
     signal; then stop both."""
-    from service.api.app import create_app
-
     refuse_open_exposure(settings, host)
     settings.make_dirs()
     upgrade(settings.database_url)
-    app = create_app(settings)
     base = f"http://{display_host(host)}:{port}"
     if not settings.api_keys:
         say("the API is open: no API keys are configured (set LTLNAV_API_KEYS to require them)")
@@ -122,10 +139,12 @@ def serve(
     if child is not None:
         say(f"worker started (pid {child.pid}, concurrency {concurrency or settings.concurrency})")
         threading.Thread(target=_watch, args=(child, stopping, say), daemon=True).start()
+    if settings.api_processes > 1:
+        say(f"API in {settings.api_processes} processes")
     say(f"dashboard: {base}/   API docs: {base}/docs   data: {settings.data_dir}")
     previous = signal.signal(signal.SIGTERM, _terminate)
     try:
-        uvicorn.Server(uvicorn.Config(app, host=host, port=port, log_level="info")).run()
+        run_api(settings, host, port)
     except KeyboardInterrupt:
         pass
     finally:

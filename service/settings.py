@@ -79,6 +79,14 @@ class Settings(BaseSettings):
     port: int = Field(default=8000, ge=1, le=65535)
     """Port ``ltlnav serve`` listens on."""
 
+    api_processes: int = Field(default=1, ge=1)
+    """API processes ``ltlnav serve`` runs on its one port (uvicorn's workers), each with its
+    own database pool and cached health probe. One process answers reads and validates
+    submissions under one interpreter lock; more help on a machine with cores to spare. On
+    2 cores shared with the workers, 2 made the reads' p99 worse during a burst of
+    submissions (61 and 93 ms against 49 and 25 ms, ``bench/service.py --load
+    --api-processes 1 2 1 2``)."""
+
     max_body_bytes: int = Field(default=1_000_000, gt=0)
     """Largest accepted request body; larger ones get 413."""
 

@@ -221,3 +221,45 @@ def test_serve_then_submit_wait_trains_the_tiny_mission(tmp_path: Path) -> None:
     assert "mission success rate" in submit.stdout
     manifest, files = read_bundle(out / "bundle.zip")
     assert len(manifest.subtasks) == 4 and files
+
+
+def _running(pid: int) -> bool:
+    """Whether ``pid`` runs (an exited process not yet reaped does not)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state not in ("Z", "X")
+
+
+def _children(pid: int) -> list[int]:
+    listed = subprocess.run(["pgrep", "-P", str(pid)], capture_output=True, text=True)
+    return [int(line) for line in listed.stdout.split()]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(120)
+def test_serve_runs_the_api_in_several_processes_and_stops_them_all(tmp_path: Path) -> None:
+    port = free_port()
+    process = _serve(tmp_path, port, "--no-worker", "--api-processes", "2")
+    base = f"http://127.0.0.1:{port}"
+    try:
+        _wait_healthy(base, process)
+        for _ in range(20):  # new connections, spread over the processes by the kernel
+            with httpx.Client() as client:
+                assert client.get(f"{base}/healthz", timeout=5).status_code == 200
+        children = _children(process.pid)
+        assert len(children) >= 2
+        process.send_signal(signal.SIGTERM)
+        output, _ = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 0, output
+    assert "API in 2 processes" in output
+    assert output.count("Application startup complete") == 2, output
+    # The API processes and multiprocessing's resource tracker exit with the supervisor.
+    deadline = time.monotonic() + 10
+    while [child for child in children if _running(child)] and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not [child for child in children if _running(child)]
