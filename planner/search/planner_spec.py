@@ -7,6 +7,11 @@ from pydantic import BaseModel, ConfigDict, Field
 DEFAULT_REFINE_ITERATIONS = 1000
 """Default anytime budget in prefix iterations (see ``PlannerSpec.refine_iterations``)."""
 
+REFINE_NODES_PER_ITERATION = 40
+"""The anytime budget also ends once the prefix tree has this many new product nodes per
+iteration of ``refine_iterations``: an iteration lifts its point onto every automaton state
+near it, hundreds on an any-order task of many goals (2^k states), and costs accordingly."""
+
 
 class PlannerSpec(BaseModel):
     """Options of TL-RRT* and of the decomposition into sub-tasks; every field is optional."""

@@ -15,12 +15,12 @@ prefix; the states that step back to ``q*`` for the suffix). Otherwise it extend
 uniform free point from the nearest node of any state.
 
 Anytime: once a first lasso exists the prefix tree keeps growing for ``refine_iterations``
-iterations, or for ``refine_seconds`` CPU seconds when that is set (RRT* rewiring shortens
-branches; more accepting nodes appear), the suffix trees restart from its grown roadmap
-(:mod:`planner.search.roadmap`), and the cheapest
-lasso ``prefix_weight * prefix + (1 - prefix_weight) * suffix`` is kept; with ``shortcut`` it
-is then shortened by :mod:`planner.search.shortcut`, which keeps it a valid product run. With the
-default iteration budget the plan depends only on the mission and the seed.
+iterations (bounded in product nodes too), or for ``refine_seconds`` CPU seconds when that is
+set (RRT* rewiring shortens branches; more accepting nodes appear), the suffix trees restart
+from its grown roadmap (:mod:`planner.search.roadmap`), and the cheapest lasso ``prefix_weight *
+prefix + (1 - prefix_weight) * suffix`` is kept; with ``shortcut`` it is then shortened by
+:mod:`planner.search.shortcut`, which keeps it a valid product run. With the default iteration
+budget the plan depends only on the mission and the seed.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from planner.geometry.world import World
 from planner.ltl.automaton import Buchi
 from planner.search.growth import Growth, SuffixGrowth
 from planner.search.keep_out import KeepOut, forbidden_regions
-from planner.search.planner_spec import PlannerSpec
+from planner.search.planner_spec import REFINE_NODES_PER_ITERATION, PlannerSpec
 from planner.search.product_sampling import Realisable, Sampler, Stepper
 from planner.search.product_tree import ProductTree
 from planner.search.shortcut import LassoRun, Ops, polish
@@ -88,10 +88,8 @@ class _Planner:
         give_up_cut_off: bool = False,
     ) -> None:
         self.t0 = time.process_time()
-        self.seed = seed
-        self.give_up_cut_off = give_up_cut_off
-        self.world, self.nba, self.options = world, nba, options
-        self.clearance = clearance
+        self.seed, self.give_up_cut_off = seed, give_up_cut_off
+        self.world, self.nba, self.options, self.clearance = world, nba, options, clearance
         self.start = np.asarray(start, dtype=float).reshape(-1)
         self.w = options.prefix_weight
         self.paths = Realisable(nba, world, clearance)
@@ -212,19 +210,21 @@ class _Planner:
 
     def refine(self, seconds: float, iterations: int | None = None) -> None:
         """Anytime phase: grow the prefix tree for ``seconds`` CPU seconds, or for
-        ``iterations`` iterations when given (deterministic); then give new accepting nodes
-        their suffix trees and restart every suffix tree from the grown roadmap.
+        ``iterations`` iterations (deterministic; or ``REFINE_NODES_PER_ITERATION`` new product
+        nodes per iteration); then give new accepting nodes their suffix trees and restart every
+        suffix tree from the grown roadmap.
 
         The suffix trees do not grow meanwhile: the shortest cycle through the prefix tree's
         roadmap (a graph, searched exactly by Dijkstra) was measured as short as the one a
         suffix tree grown alongside reaches, at half the CPU time."""
         deadline = self.elapsed() + seconds
         stop = self.prefix.iterations + iterations if iterations is not None else None
-        while True:
-            if stop is None and self.elapsed() >= deadline:
-                break
-            if stop is not None and self.prefix.iterations >= stop:
-                break
+        node_stop = self.prefix.tree.num_nodes + REFINE_NODES_PER_ITERATION * (iterations or 0)
+        while (
+            self.elapsed() < deadline
+            if stop is None
+            else self.prefix.iterations < stop and self.prefix.tree.num_nodes < node_stop
+        ):
             before = self.prefix.iterations
             self._grow_prefix(30 if stop is None else min(30, stop - before))
             if self.prefix.iterations == before:

@@ -8,8 +8,10 @@ import math
 import numpy as np
 import pytest
 
+from planner.geometry.shapes import Ball
+from planner.geometry.world import World
 from planner.ltl.translate import translate
-from planner.search.planner_spec import PlannerSpec
+from planner.search.planner_spec import REFINE_NODES_PER_ITERATION, PlannerSpec
 from planner.search.point_index import PointIndex
 from planner.search.product_tree import ProductTree
 from planner.search.tl_rrt_star import _Planner
@@ -71,3 +73,21 @@ def test_points_added_together_answer_as_added_one_by_one() -> None:
         assert one.nearest(q) == many.nearest(q)
         assert one.within(q, 0.7).tolist() == many.within(q, 0.7).tolist()
         assert one.within(q, 2.0, k=9).tolist() == many.within(q, 2.0, k=9).tolist()
+
+
+def test_the_anytime_budget_ends_at_its_product_nodes_on_an_any_order_task() -> None:
+    """Seven goals in any order: 128 automaton states, each iteration lifts its point onto
+    many of them; the budget of 200 iterations ends at 40 new nodes per iteration first."""
+    goals = {f"g{i}": Ball(np.array([1.0 + 1.2 * i, 9.0 - (i % 2) * 7.0]), 0.4) for i in range(7)}
+    world = World(np.array([[0.0, 10.0], [0.0, 10.0]]), [], goals)
+    nba = translate(" && ".join(f"<>{name}" for name in goals))
+    assert nba.num_states == 128
+    spec = PlannerSpec(seed=0)
+    planner = _Planner(world, nba, np.array([5.0, 5.0]), 0.1, spec, np.random.default_rng(0))
+    planner.first_lasso()
+    nodes, iterations = planner.prefix.tree.num_nodes, planner.prefix.iterations
+    planner.refine(0.0, 200)
+    grown = planner.prefix.tree.num_nodes - nodes
+    assert planner.prefix.iterations - iterations < 200
+    assert grown >= 200 * REFINE_NODES_PER_ITERATION
+    assert_consistent(planner.prefix.tree)
