@@ -261,8 +261,11 @@ class ActionShaping:
             )
         self.pursuit = 0.0
         """Turning radius of the pursuit law (0: the heading law)."""
+        self.ahead = 0.0
+        """How far ahead on the guide the pursuit law's point runs, metres."""
         if options.feedforward_law == "pursuit":
             self.pursuit = robot.params.min_turning_radius()
+            self.ahead = (options.pursuit_lookahead or PURSUIT_LOOKAHEAD) * self.pursuit
             if self.pursuit <= 0 or robot.name not in HEADING_FEATURES:
                 raise EnvConfigError(
                     "options.feedforward_law",
@@ -285,8 +288,7 @@ class ActionShaping:
         if self.gain is not None:
             x = robot.position()
             if self.pursuit:
-                ahead = PURSUIT_LOOKAHEAD * self.pursuit
-                target = pursuit_target(track, index, x, ahead)
+                target = pursuit_target(track, index, x, self.ahead)
                 turn = pursuit_turn(robot.heading(), x, target, self.pursuit)
             else:
                 if robot.name == "point":

@@ -89,6 +89,9 @@ class EnvOptions:
     in proportion to the heading error; ``"pursuit"`` (robots with a minimum turning radius),
     pure pursuit of a point along the guide (``envs.feedforward``; with ``drivable_guide``,
     along the dense redrawn path)."""
+    pursuit_lookahead: float | None = None
+    """With ``feedforward_law`` ``"pursuit"``: how far ahead on the guide the pursued point
+    runs, in minimum turning radii of the robot. None: ``envs.feedforward.PURSUIT_LOOKAHEAD``."""
     drivable_guide: float | None = None
     """Robots with a minimum turning radius (racecar) only: redraw every guide as a path of
     Dubins arcs of this multiple (>= 1) of that radius, from the pose the mission hands the
@@ -134,7 +137,7 @@ class EnvOptions:
         )
         need(integer("lookahead") and self.lookahead >= 0, "lookahead", "must be an integer >= 0")
         need(integer("rays") and self.rays >= 0, "rays", "must be an integer >= 0")
-        for name in ("lookahead_range", "ray_range", "r_ball"):
+        for name in ("lookahead_range", "ray_range", "r_ball", "pursuit_lookahead"):
             value = getattr(self, name)
             need(value is None or (number(name) and value > 0), name, "must be > 0")
         need(number("curriculum") and 0 <= self.curriculum <= 1, "curriculum", "must be in [0, 1]")

@@ -15,10 +15,10 @@ import pytest
 from envs.drivable import clearances, redraw_course
 from envs.errors import EnvConfigError
 from envs.factory import make_env
-from envs.feedforward import Track, pursuit_target, pursuit_turn
+from envs.feedforward import PURSUIT_LOOKAHEAD, ActionShaping, Track, pursuit_target, pursuit_turn
 from envs.handover import arrival_pose
 from envs.options import EnvOptions
-from envs.robots import robot_params
+from envs.robots import make_robot, robot_params
 from envs.spec import RobotSpec
 from planner.geometry.drivable import thin
 from planner.geometry.pose import Pose
@@ -177,3 +177,18 @@ def test_the_pursuit_feedforward_alone_makes_the_u_turn() -> None:
     with pytest.raises(EnvConfigError, match="minimum turning radius") as err:
         make_env(racecar_mission("unicycle"), 1, world=world, plan=plan, feedforward_law="pursuit")
     assert err.value.field == "options.feedforward_law"
+
+
+def test_the_pursuit_lookahead_is_set_in_turning_radii() -> None:
+    robot = make_robot("racecar", lane()[0], RADIUS)
+    try:
+        rho = robot.params.min_turning_radius()
+        default = ActionShaping(robot, EnvOptions(guide_feedforward=1.0, feedforward_law="pursuit"))
+        assert default.ahead == pytest.approx(PURSUIT_LOOKAHEAD * rho)
+        longer = EnvOptions(guide_feedforward=1.0, feedforward_law="pursuit", pursuit_lookahead=2)
+        assert ActionShaping(robot, longer).ahead == pytest.approx(2.0 * rho)
+    finally:
+        robot.close()
+    with pytest.raises(EnvConfigError, match="> 0") as err:
+        EnvOptions(pursuit_lookahead=0.0)
+    assert err.value.field == "options.pursuit_lookahead"
