@@ -47,8 +47,10 @@ if TYPE_CHECKING:
 
 PURSUIT_LOOKAHEAD = 1.3
 """Pure-pursuit lookahead in minimum turning radii (0.8 m for the racecar, whose drivable
-guides turn on 1.45 radii: with it the zero action drives every sub-task of
-``examples/racecar-phi2-fin.yaml``, ``bench/zero_policy.py``)."""
+guides turn on 1.45 radii), ``EnvOptions.pursuit_lookahead`` unless set. First fitted on
+``examples/racecar-phi2-fin.yaml``; then measured with the zero action on the generated worlds
+of ``bench/zero_grid.py racecar --seeds 0 20 --env '{"pursuit_lookahead": L}'`` (tuning seeds,
+20 starts a sub-task): 1.0 holds 47 of 52 sub-tasks, 1.3 48, 1.6 47, 2.0 38."""
 
 HEADING_LOOKAHEAD = 0.2
 """Seconds of the robot's top speed that the heading law's target runs ahead on the guide (the
