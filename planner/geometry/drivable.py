@@ -9,12 +9,14 @@ polyline (one every ``spacing``, and every corner, each facing along the polylin
 dynamic programming the shortest chain that ends at the polyline's last point. Each Dubins piece
 must keep ``clearance`` from the obstacles and the bounds, and may meet only regions the
 polyline (or the start) already meets, so the redrawn path produces no label the plan did not. A
-U-turn becomes a loop of radius ``rho`` wherever there is room for one."""
+U-turn becomes a loop of radius ``rho`` wherever there is room for one; where there is none at
+the start, the car first drives off to a pose nearby from which it can join the polyline."""
 
 from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,6 +27,15 @@ from planner.geometry.world import World
 
 STEP = 0.05
 """Spacing (m) of the points a Dubins piece is checked and drawn with."""
+
+TURN_AROUND_REACH = 6
+"""How far (in turning radii, along each axis) from the start a turn-around may lead."""
+
+TURN_AROUND_HEADINGS = 8
+"""Headings tried at each turn-around position."""
+
+TURN_AROUND_TRIES = 200
+"""Drivable turn-around pieces tried, shortest first, before the redraw gives up."""
 
 
 @dataclass(frozen=True)
@@ -124,7 +135,7 @@ def drivable_path(
     parent = [-2] * count
     pieces: list[np.ndarray | None] = [None] * count
 
-    def relax(source: int, origin: Pose, base: float, lo: float) -> None:
+    def relax(source: int, origin: Pose, base: float, lo: float, lead: np.ndarray | None) -> None:
         for j in range(count):
             if nodes[j].along < lo or nodes[j].along > lo + span:
                 continue
@@ -136,13 +147,20 @@ def drivable_path(
                     break
                 pts = checker.points(piece)
                 if pts is not None:
-                    cost[j], parent[j], pieces[j] = total, source, pts
+                    joined = pts if lead is None else np.vstack([lead, pts[1:]])
+                    cost[j], parent[j], pieces[j] = total, source, joined
                     break
 
-    relax(-1, start, 0.0, 0.0)
+    relax(-1, start, 0.0, 0.0, None)
+    if not any(math.isfinite(c) for c in cost):
+        join = next((n for n in nodes if n.along >= 2.0 * rho), nodes[-1]).pose
+        for length, lead, pose in _turn_arounds(checker, start, join, rho):
+            relax(-1, pose, length, 0.0, lead)
+            if any(math.isfinite(c) for c in cost):
+                break
     for i in range(count):
         if math.isfinite(cost[i]):
-            relax(i, nodes[i].pose, cost[i], nodes[i].along)
+            relax(i, nodes[i].pose, cost[i], nodes[i].along, None)
     end = count - 1
     if not math.isfinite(cost[end]):
         return None
@@ -155,6 +173,42 @@ def drivable_path(
         j = parent[j]
     chain.reverse()
     return np.vstack([chain[0], *(c[1:] for c in chain[1:])])
+
+
+def _turn_arounds(
+    checker: _Checker, start: Pose, join: Pose, rho: float
+) -> Iterator[tuple[float, np.ndarray, Pose]]:
+    """Drivable Dubins pieces from ``start`` to poses around it, as (length, points, end pose),
+    those from which ``join`` looks nearest first: where no piece joins the start to the
+    polyline (the car faces away with no room for a loop on the spot), it may first drive off
+    to where it can turn. Poses lie on a grid ``rho`` apart within ``TURN_AROUND_REACH``
+    turning radii, ``TURN_AROUND_HEADINGS`` headings each; at most ``TURN_AROUND_TRIES``
+    drivable ones are offered."""
+    steps = np.arange(-TURN_AROUND_REACH, TURN_AROUND_REACH + 1) * rho
+    centre = np.asarray(start.position, dtype=float)
+    headings = np.arange(TURN_AROUND_HEADINGS) * (2 * math.pi / TURN_AROUND_HEADINGS)
+    candidates: list[tuple[float, int, list[DubinsPath]]] = []
+    for dx, dy in itertools.product(steps, steps):
+        position = centre + np.array([dx, dy])
+        if checker.world.in_collision(position[None, :], checker.clearance)[0]:
+            continue
+        for heading in headings:
+            pose = Pose(position, float(heading))
+            words = dubins_words(start, pose, rho)
+            onward = dubins_words(pose, join, rho)
+            if words and onward:
+                candidates.append((words[0].length + onward[0].length, len(candidates), words))
+    candidates.sort(key=lambda c: (c[0], c[1]))
+    tries = 0
+    for _, _, words in candidates:
+        for word in words:
+            pts = checker.points(word)
+            if pts is not None:
+                yield word.length, pts, word.end()
+                tries += 1
+                break
+        if tries >= TURN_AROUND_TRIES:
+            return
 
 
 def thin(points: np.ndarray, spacing: float) -> np.ndarray:

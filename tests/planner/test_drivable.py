@@ -69,6 +69,26 @@ def test_the_loop_meets_no_region_the_polyline_does_not_meet() -> None:
     assert not world.label_matrix(path)[:, world.region_names.index("off")].any()
 
 
+def test_a_start_facing_away_in_a_narrow_lane_drives_off_to_turn_where_there_is_room() -> None:
+    """The lane is 1.6 m wide, too narrow for a loop of radius 1 with 0.3 m of clearance; it
+    opens behind the car into a hall where the car can turn."""
+    walls = [
+        Box(np.array([-0.5, -6.0]), np.array([12.0, 1.2])),
+        Box(np.array([-0.5, 2.8]), np.array([12.0, 8.0])),
+    ]
+    world = World(np.array([[-6.0, 12.0], [-6.0, 8.0]]), walls, {})
+    start = Pose(np.array([2.0, 2.0]), math.pi)
+    path = drivable_path(world, LANE, start, rho=1.0, clearance=0.3)
+    assert path is not None
+    np.testing.assert_allclose(path[0], [2.0, 2.0])
+    np.testing.assert_allclose(path[-1], [10.0, 2.0])
+    assert path[:, 0].min() < -0.5  # it turned in the hall
+    assert path[1, 0] < path[0, 0]  # driving off the way it faces
+    assert _turns(path).max() <= 1.0 / 1.0 + 0.05
+    assert not world.in_collision(path, 0.3).any()
+    assert np.linalg.norm(np.diff(path, axis=0), axis=1).max() <= STEP + 1e-9
+
+
 def test_no_room_to_turn_gives_none() -> None:
     narrow = World(np.array([[-2.0, 12.0], [1.0, 3.0]]), [], {})
     assert (
