@@ -265,12 +265,7 @@ def serve(
         bool, typer.Option("--no-worker", help="Serve the API only (workers run elsewhere).")
     ] = False,
     api_processes: Annotated[
-        int | None,
-        typer.Option(
-            "--api-processes",
-            min=1,
-            help="Processes serving the API on the port (default LTLNAV_API_PROCESSES, 1).",
-        ),
+        int | None, typer.Option(min=1, help="API processes (default LTLNAV_API_PROCESSES, 1).")
     ] = None,
 ) -> None:
     """Migrate the database, then run the API and one embedded worker until Ctrl-C. Without
