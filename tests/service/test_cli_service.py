@@ -150,6 +150,13 @@ def _serve(tmp_path: Path, port: int, *extra: str) -> subprocess.Popen[str]:
     )
 
 
+def _stopped(process: subprocess.Popen[str], stop: signal.Signals) -> str:
+    """Send ``stop`` and wait for the process to exit; its output."""
+    process.send_signal(stop)
+    output, _ = process.communicate(timeout=60)
+    return output
+
+
 def _wait_healthy(base: str, process: subprocess.Popen[str], seconds: float = 60) -> dict[str, str]:
     deadline = time.monotonic() + seconds
     while time.monotonic() < deadline:
@@ -172,8 +179,7 @@ def test_serve_migrates_says_open_and_stops_cleanly(tmp_path: Path, stop: signal
         report = _wait_healthy(f"http://127.0.0.1:{port}", process)
         assert report["database"] == "ok" and report["open"]
         time.sleep(1)
-        process.send_signal(stop)
-        output, _ = process.communicate(timeout=60)
+        output = _stopped(process, stop)
     finally:
         if process.poll() is None:
             process.kill()
@@ -250,8 +256,7 @@ def test_serve_runs_the_api_in_several_processes_and_stops_them_all(tmp_path: Pa
                 assert client.get(f"{base}/healthz", timeout=5).status_code == 200
         children = _children(process.pid)
         assert len(children) >= 2
-        process.send_signal(signal.SIGTERM)
-        output, _ = process.communicate(timeout=60)
+        output = _stopped(process, signal.SIGTERM)
     finally:
         if process.poll() is None:
             process.kill()
