@@ -26,6 +26,7 @@ from service.models import MissionStatus
 from service.progress_printer import ProgressPrinter
 from service.settings import Settings
 from tests.service.api_helpers import REPO, advance, free_port, served, settings_for, tiny
+from tests.service.process_tree import descendants, running
 from workers.bundle_reader import read_bundle
 
 
@@ -229,20 +230,6 @@ def test_serve_then_submit_wait_trains_the_tiny_mission(tmp_path: Path) -> None:
     assert len(manifest.subtasks) == 4 and files
 
 
-def _running(pid: int) -> bool:
-    """Whether ``pid`` runs (an exited process not yet reaped does not)."""
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state not in ("Z", "X")
-
-
-def _children(pid: int) -> list[int]:
-    listed = subprocess.run(["pgrep", "-P", str(pid)], capture_output=True, text=True)
-    return [int(line) for line in listed.stdout.split()]
-
-
 @pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_serve_runs_the_api_in_several_processes_and_stops_them_all(tmp_path: Path) -> None:
@@ -254,7 +241,7 @@ def test_serve_runs_the_api_in_several_processes_and_stops_them_all(tmp_path: Pa
         for _ in range(20):  # new connections, spread over the processes by the kernel
             with httpx.Client() as client:
                 assert client.get(f"{base}/healthz", timeout=5).status_code == 200
-        children = _children(process.pid)
+        children = descendants(process.pid)
         assert len(children) >= 2
         output = _stopped(process, signal.SIGTERM)
     finally:
@@ -265,6 +252,6 @@ def test_serve_runs_the_api_in_several_processes_and_stops_them_all(tmp_path: Pa
     assert output.count("Application startup complete") == 2, output
     # The API processes and multiprocessing's resource tracker exit with the supervisor.
     deadline = time.monotonic() + 10
-    while [child for child in children if _running(child)] and time.monotonic() < deadline:
+    while running(children) and time.monotonic() < deadline:
         time.sleep(0.1)
-    assert not [child for child in children if _running(child)]
+    assert running(children) == []

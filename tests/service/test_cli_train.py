@@ -18,6 +18,7 @@ import yaml
 from typer.testing import CliRunner
 
 from service.cli import EXIT_BAD_INPUT, app
+from tests.service.process_tree import cpu_ticks, descendants, running
 from tests.workers.missions import TINY
 
 runner = CliRunner()
@@ -89,47 +90,6 @@ def test_train_reports_an_unknown_hyperparameter(tmp_path: Path) -> None:
     assert "training.hyperparams.gama" in result.output and "gamma" in result.output
 
 
-def _descendants(pid: int) -> list[int]:
-    children: dict[int, list[int]] = {}
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                parent = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
-            except (OSError, IndexError, ValueError):
-                continue
-            children.setdefault(parent, []).append(int(entry.name))
-    found, todo = [], [pid]
-    while todo:
-        for child in children.get(todo.pop(), []):
-            found.append(child)
-            todo.append(child)
-    return found
-
-
-def _cpu_ticks(pids: list[int]) -> int:
-    total = 0
-    for pid in pids:
-        try:
-            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        total += int(fields[11]) + int(fields[12])  # utime + stime
-    return total
-
-
-def _running(pids: list[int]) -> list[int]:
-    """Those of ``pids`` that still run (neither gone nor a zombie nobody reaped yet)."""
-    running = []
-    for pid in pids:
-        try:
-            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-        except OSError:
-            continue
-        if state != "Z":
-            running.append(pid)
-    return running
-
-
 @pytest.mark.skipif(not Path("/proc/self/stat").is_file(), reason="needs Linux /proc")
 def test_a_killed_train_leaves_no_worker_training(tmp_path: Path) -> None:
     """SIGKILL of ``ltlnav train`` mid-training: its pool's workers stop within seconds (after a
@@ -150,16 +110,16 @@ def test_a_killed_train_leaves_no_worker_training(tmp_path: Path) -> None:
             time.sleep(0.2)
         assert proc.poll() is None, "ltlnav train ended before training"
         time.sleep(2)
-        family = _descendants(proc.pid)
+        family = descendants(proc.pid)
         proc.kill()
         proc.wait()
         time.sleep(8)
-        before = _cpu_ticks(family)
+        before = cpu_ticks(family)
         time.sleep(4)
-        spent = _cpu_ticks(family) - before
+        spent = cpu_ticks(family) - before
         assert spent <= 20, f"the orphans used {spent} CPU ticks in 4 s"  # 100 ticks a CPU-second
         assert len(family) >= 4  # the forkserver, the manager, two workers (and the tracker)
-        assert _running(family) == []
+        assert running(family) == []
         assert list(out.glob("subtask_*/checkpoints/model_*_steps.zip"))  # it can resume
     finally:
         proc.kill()
