@@ -93,7 +93,7 @@ def train(
     task: Task, method: str, protocol: str, seed: int, out: Path, records: Path, jobs: int
 ) -> None:
     """Train one run unless its record or its ``wall.json`` says it finished (on this machine
-    or another); measure its wall time."""
+    or another); measure its wall time and keep its record at once."""
     row = run_row(task, method, protocol, seed)
     if (records / f"{row.folder}.json").is_file():
         return
@@ -106,6 +106,7 @@ def train(
     run_rows([row], out, jobs)
     spent = {"seconds": time.monotonic() - started, "jobs": jobs, "commit": commit}
     record.write_text(json.dumps(spent))
+    run_figures(task, method, protocol, seed, out, records)
 
 
 def zero_control(task: Task, protocol: str, out: Path, records: Path) -> dict[str, Any]:
