@@ -72,7 +72,10 @@ def redraw_course(
             if path is not None:
                 break
         if path is not None:
-            drawn[k] = dataclasses.replace(sub, start=path[0].copy(), path=path)
+            points = path.points
+            drawn[k] = dataclasses.replace(
+                sub, start=points[0].copy(), path=points, reverse=path.cusp
+            )
         pose = arrival_pose(world, drawn[k])
     _cache[key] = (world, drawn)
     while len(_cache) > CACHE_SIZE:

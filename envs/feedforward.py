@@ -21,7 +21,9 @@ turning radii along the leg's :class:`Track` past the robot's projection on it, 
 command is the curvature of the arc through it in units of the tightest curvature. On a guide
 the car can drive (``EnvOptions.drivable_guide``) the track is the dense redrawn path, and this
 tracks the loops and curves that the heading law, or pursuit of the chords between the balls,
-cuts.
+cuts. Along a redrawn path's reversing lead (a three-point turn, ``Track.cusp_togo``) the law
+drives backwards: the forward command negated, the target no further than the cusp, and the
+turn that of pursuit facing the other way, negated (a car backing up turns the other way).
 """
 
 from __future__ import annotations
@@ -66,6 +68,11 @@ Measured with the zero action on the generated 3D cities of ``bench/generality.p
 seeds 0-19, 20 starts a sub-task, planner margin 0.3 m): 0.5 s holds 52 of 52 sub-tasks (54 of
 54 on seeds 20-39), 1 s 51 of 52; the carrot two balls ahead, which it replaced, 35 of 52 (its
 chord cuts the towers' corners where the r-balls are wide)."""
+
+
+CUSP_REACHED = 0.05
+"""Metres short of the end of a reversing lead (``Track.cusp_togo``) from which the pursuit law
+drives forwards again."""
 
 
 WORLD_FRAME_ROBOTS = frozenset({"point", "quadrotor"})
@@ -146,6 +153,9 @@ class Track:
     """``(m,)`` path length from each point to the end (non-increasing)."""
     ball_togo: np.ndarray
     """``(n,)`` path length from each of the guide's balls to the end."""
+    cusp_togo: float | None = None
+    """Path length to the end from where a reversing lead ends (None: no lead); the car
+    backs up while its projection on the track has more than this to go."""
     neg_togo: np.ndarray = field(init=False, repr=False, compare=False)
     """``-togo`` (non-decreasing, for ``searchsorted``)."""
     _stretches: dict[int, Stretch] = field(
@@ -161,13 +171,15 @@ class Track:
         return cls(guide.centers, guide.dist_to_go, guide.dist_to_go)
 
     @classmethod
-    def dense(cls, points: np.ndarray, balls: int) -> Track:
+    def dense(cls, points: np.ndarray, balls: int, cusp: int = 0) -> Track:
         """``points``, a dense path whose ``balls`` marks evenly spaced along it are the
-        guide's balls (``planner.geometry.drivable.thin``)."""
+        guide's balls (``planner.geometry.drivable.thin``), driven backwards up to
+        ``points[cusp]`` (0: no reversing lead)."""
         pts = np.asarray(points, dtype=float)
         along = arc_lengths(pts)
         total = float(along[-1])
-        return cls(pts, total - along, total - np.linspace(0.0, total, balls))
+        cusp_togo = total - float(along[cusp]) if cusp > 0 else None
+        return cls(pts, total - along, total - np.linspace(0.0, total, balls), cusp_togo)
 
     def stretch(self, index: int) -> Stretch:
         """The segments of the track from ball ``index - 1`` to ball ``index + 4`` (``index``
@@ -207,18 +219,28 @@ def pursuit_target(
 ) -> np.ndarray:
     """The point ``ahead`` metres along ``track`` past the projection of ``x`` on its stretch
     from ball ``index - 1`` to ball ``index + 4`` (``index`` -1: none reached)."""
-    points, togo = track.points, track.togo
-    m = len(points)
-    if m == 1:
-        return np.asarray(points[0], dtype=float)
+    return point_to_go(track, projected_togo(track, index, x) - ahead)
+
+
+def projected_togo(track: Track, index: int, x: Sequence[float] | np.ndarray) -> float:
+    """Path length to the end of ``track`` from the projection of ``x`` on its stretch from
+    ball ``index - 1`` to ball ``index + 4``."""
+    if len(track.points) == 1:
+        return 0.0
     st = track.stretch(index)
     point = np.asarray(x, dtype=float)
     t = np.clip(np.einsum("ij,ij->i", point - st.a, st.seg) / st.length_sq, 0.0, 1.0)
     gap = st.a + t[:, None] * st.seg - point
     j = int(np.argmin(np.einsum("ij,ij->i", gap, gap)))
-    left = float(togo[st.lo + j]) - t[j] * float(st.length[j]) - ahead
+    return float(track.togo[st.lo + j]) - t[j] * float(st.length[j])
+
+
+def point_to_go(track: Track, left: float) -> np.ndarray:
+    """The point of ``track`` with path length ``left`` to its end."""
+    points, togo = track.points, track.togo
+    m = len(points)
     k = int(np.searchsorted(track.neg_togo, -left, side="right"))
-    if k >= m:
+    if k >= m or m == 1:
         return np.asarray(points[-1], dtype=float)
     k = max(k, 1)
     span = float(togo[k - 1] - togo[k])
@@ -287,11 +309,20 @@ class ActionShaping:
                 f"action must have shape ({robot.action_dim},) with components in [-1, 1] "
                 f"(actions are not clipped), got {np.asarray(action).tolist()}"
             )
+        backwards = False
         if self.gain is not None:
             x = robot.position()
             if self.pursuit:
-                target = pursuit_target(track, index, x, self.ahead)
-                turn = pursuit_turn(robot.heading(), x, target, self.pursuit)
+                on = projected_togo(track, index, x)
+                cusp = track.cusp_togo
+                backwards = cusp is not None and on > cusp + CUSP_REACHED
+                if backwards:
+                    assert cusp is not None
+                    target = point_to_go(track, max(on - self.ahead, cusp))
+                    turn = -pursuit_turn(robot.heading() + math.pi, x, target, self.pursuit)
+                else:
+                    target = point_to_go(track, on - self.ahead)
+                    turn = pursuit_turn(robot.heading(), x, target, self.pursuit)
             else:
                 if robot.name == "point":
                     toward = velocity_command(robot, track, index, x)
@@ -305,4 +336,6 @@ class ActionShaping:
             a[1] = min(1.0, max(-1.0, a[1] + self.gain * turn))
         if self.forward is not None:
             a[0] = self.forward + (1.0 - self.forward) * 0.5 * (a[0] + 1.0)
+        if backwards:
+            a[0] = -a[0]
         return a

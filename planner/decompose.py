@@ -45,7 +45,8 @@ Phase = Literal["prefix", "suffix"]
 class SubTask:
     """Reach region ``goal`` from ``start`` along the guide ``path`` (``path[0] == start``,
     ``path[-1]`` in the goal region), never touching obstacles. ``nba_state`` is the
-    automaton state during the piece and ``next_nba_state`` the one entered at its end."""
+    automaton state during the piece and ``next_nba_state`` the one entered at its end. A car's
+    redrawn guide (``envs.drivable``) is driven backwards over ``path[: reverse + 1]``."""
 
     index: int
     phase: Phase
@@ -54,6 +55,7 @@ class SubTask:
     path: np.ndarray
     nba_state: int
     next_nba_state: int
+    reverse: int = 0
 
 
 @dataclass

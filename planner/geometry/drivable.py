@@ -10,7 +10,9 @@ dynamic programming the shortest chain that ends at the polyline's last point. E
 must keep ``clearance`` from the obstacles and the bounds, and may meet only regions the
 polyline (or the start) already meets, so the redrawn path produces no label the plan did not. A
 U-turn becomes a loop of radius ``rho`` wherever there is room for one; where there is none at
-the start, the car first drives off to a pose nearby from which it can join the polyline."""
+the start, the car first drives off to a pose nearby from which it can join the polyline, and
+where it cannot drive off forwards (a wall just ahead, facing away from the polyline), it backs
+off first: a three-point turn, whose reversing lead :attr:`DrivablePath.cusp` marks."""
 
 from __future__ import annotations
 
@@ -36,6 +38,15 @@ TURN_AROUND_HEADINGS = 8
 
 TURN_AROUND_TRIES = 200
 """Drivable turn-around pieces tried, shortest first, before the redraw gives up."""
+
+
+@dataclass(frozen=True)
+class DrivablePath:
+    """A redrawn path: ``points`` ``(m, 2)`` at most ``STEP`` apart, of which the car drives
+    ``points[: cusp + 1]`` backwards (``cusp`` 0: all forwards)."""
+
+    points: np.ndarray
+    cusp: int = 0
 
 
 @dataclass(frozen=True)
@@ -113,10 +124,10 @@ def drivable_path(
     *,
     spacing: float | None = None,
     reach: float | None = None,
-) -> np.ndarray | None:
+) -> DrivablePath | None:
     """``path`` ``(n, 2)`` redrawn from ``start`` as Dubins pieces of turning radius ``rho``
-    (see the module docstring): points ``(m, 2)`` at most ``STEP`` apart from the start's
-    position to ``path[-1]``, or None when no such chain keeps ``clearance``.
+    (see the module docstring): points at most ``STEP`` apart from the start's position to
+    ``path[-1]``, or None when no such chain keeps ``clearance``.
 
     ``spacing`` (default ``rho``) is the waypoint spacing along the polyline and ``reach``
     (default ``6 rho``) the longest stretch of polyline one piece may replace."""
@@ -152,11 +163,15 @@ def drivable_path(
                     break
 
     relax(-1, start, 0.0, 0.0, None)
-    if not any(math.isfinite(c) for c in cost):
-        join = next((n for n in nodes if n.along >= 2.0 * rho), nodes[-1]).pose
-        for length, lead, pose in _turn_arounds(checker, start, join, rho):
+    cusp = 0
+    join = next((n for n in nodes if n.along >= 2.0 * rho), nodes[-1]).pose
+    for backwards in (False, True):
+        if any(math.isfinite(c) for c in cost):
+            break
+        for length, lead, pose in _turn_arounds(checker, start, join, rho, backwards):
             relax(-1, pose, length, 0.0, lead)
             if any(math.isfinite(c) for c in cost):
+                cusp = len(lead) - 1 if backwards else 0
                 break
     for i in range(count):
         if math.isfinite(cost[i]):
@@ -172,18 +187,24 @@ def drivable_path(
         chain.append(piece)
         j = parent[j]
     chain.reverse()
-    return np.vstack([chain[0], *(c[1:] for c in chain[1:])])
+    return DrivablePath(np.vstack([chain[0], *(c[1:] for c in chain[1:])]), cusp)
+
+
+def _backwards(pose: Pose) -> Pose:
+    """The pose facing the other way: a Dubins piece between two such poses is driven in
+    reverse between the originals."""
+    return Pose(pose.position, pose.heading + math.pi)
 
 
 def _turn_arounds(
-    checker: _Checker, start: Pose, join: Pose, rho: float
+    checker: _Checker, start: Pose, join: Pose, rho: float, backwards: bool = False
 ) -> Iterator[tuple[float, np.ndarray, Pose]]:
     """Drivable Dubins pieces from ``start`` to poses around it, as (length, points, end pose),
     those from which ``join`` looks nearest first: where no piece joins the start to the
     polyline (the car faces away with no room for a loop on the spot), it may first drive off
-    to where it can turn. Poses lie on a grid ``rho`` apart within ``TURN_AROUND_REACH``
-    turning radii, ``TURN_AROUND_HEADINGS`` headings each; at most ``TURN_AROUND_TRIES``
-    drivable ones are offered."""
+    (``backwards``: back off) to where it can turn. Poses lie on a grid ``rho`` apart within
+    ``TURN_AROUND_REACH`` turning radii, ``TURN_AROUND_HEADINGS`` headings each; at most
+    ``TURN_AROUND_TRIES`` drivable ones are offered."""
     steps = np.arange(-TURN_AROUND_REACH, TURN_AROUND_REACH + 1) * rho
     centre = np.asarray(start.position, dtype=float)
     headings = np.arange(TURN_AROUND_HEADINGS) * (2 * math.pi / TURN_AROUND_HEADINGS)
@@ -194,7 +215,10 @@ def _turn_arounds(
             continue
         for heading in headings:
             pose = Pose(position, float(heading))
-            words = dubins_words(start, pose, rho)
+            if backwards:
+                words = dubins_words(_backwards(start), _backwards(pose), rho)
+            else:
+                words = dubins_words(start, pose, rho)
             onward = dubins_words(pose, join, rho)
             if words and onward:
                 candidates.append((words[0].length + onward[0].length, len(candidates), words))
@@ -204,7 +228,8 @@ def _turn_arounds(
         for word in words:
             pts = checker.points(word)
             if pts is not None:
-                yield word.length, pts, word.end()
+                end = word.end()
+                yield word.length, pts, _backwards(end) if backwards else end
                 tries += 1
                 break
         if tries >= TURN_AROUND_TRIES:

@@ -29,8 +29,9 @@ def _turns(points: np.ndarray) -> np.ndarray:
 
 
 def test_a_start_facing_along_a_straight_polyline_keeps_it() -> None:
-    path = drivable_path(_world(), LANE, Pose(np.array([2.0, 2.0]), 0.0), rho=1.0, clearance=0.3)
-    assert path is not None
+    drawn = drivable_path(_world(), LANE, Pose(np.array([2.0, 2.0]), 0.0), rho=1.0, clearance=0.3)
+    assert drawn is not None and drawn.cusp == 0
+    path = drawn.points
     np.testing.assert_allclose(path[0], [2.0, 2.0])
     np.testing.assert_allclose(path[-1], [10.0, 2.0])
     assert np.abs(path[:, 1] - 2.0).max() < 1e-6
@@ -39,8 +40,9 @@ def test_a_start_facing_along_a_straight_polyline_keeps_it() -> None:
 
 def test_a_start_facing_away_turns_round_on_a_loop_of_the_radius() -> None:
     world = _world()
-    path = drivable_path(world, LANE, Pose(np.array([2.0, 2.0]), math.pi), rho=1.0, clearance=0.3)
-    assert path is not None
+    drawn = drivable_path(world, LANE, Pose(np.array([2.0, 2.0]), math.pi), rho=1.0, clearance=0.3)
+    assert drawn is not None and drawn.cusp == 0
+    path = drawn.points
     length = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
     assert length >= 8.0 + math.pi * 1.0 - 0.1  # at least a half circle more than the lane
     assert _turns(path).max() <= 1.0 / 1.0 + 0.05
@@ -52,8 +54,10 @@ def test_a_start_facing_away_turns_round_on_a_loop_of_the_radius() -> None:
 def test_the_loop_avoids_obstacles() -> None:
     below = Box(np.array([-2.0, -2.0]), np.array([4.0, 1.2]))
     world = _world([below])
-    path = drivable_path(world, LANE, Pose(np.array([2.0, 2.0]), math.pi), rho=1.0, clearance=0.3)
-    assert path is not None and path[:, 1].max() > 3.0  # round the top: the box is below
+    drawn = drivable_path(world, LANE, Pose(np.array([2.0, 2.0]), math.pi), rho=1.0, clearance=0.3)
+    assert drawn is not None
+    path = drawn.points
+    assert path[:, 1].max() > 3.0  # round the top: the box is below
     assert not world.in_collision(path, 0.3).any()
 
 
@@ -61,11 +65,13 @@ def test_the_loop_meets_no_region_the_polyline_does_not_meet() -> None:
     free = drivable_path(
         _world(), LANE, Pose(np.array([2.0, 2.0]), math.pi), rho=1.0, clearance=0.3
     )
-    assert free is not None and free[:, 1].min() < 1.0  # left alone it loops round the bottom
+    assert free is not None and free.points[:, 1].min() < 1.0  # alone it loops round the bottom
     regions = {"far": Ball(np.array([10.0, 2.0]), 0.8), "off": Ball(np.array([1.0, 1.0]), 0.5)}
     world = World(np.array([[-2.0, 12.0], [-2.0, 6.0]]), [], regions)
-    path = drivable_path(world, LANE, Pose(np.array([2.0, 2.0]), math.pi), rho=1.0, clearance=0.3)
-    assert path is not None and path[:, 1].max() > 3.0
+    drawn = drivable_path(world, LANE, Pose(np.array([2.0, 2.0]), math.pi), rho=1.0, clearance=0.3)
+    assert drawn is not None
+    path = drawn.points
+    assert path[:, 1].max() > 3.0
     assert not world.label_matrix(path)[:, world.region_names.index("off")].any()
 
 
@@ -78,8 +84,9 @@ def test_a_start_facing_away_in_a_narrow_lane_drives_off_to_turn_where_there_is_
     ]
     world = World(np.array([[-6.0, 12.0], [-6.0, 8.0]]), walls, {})
     start = Pose(np.array([2.0, 2.0]), math.pi)
-    path = drivable_path(world, LANE, start, rho=1.0, clearance=0.3)
-    assert path is not None
+    drawn = drivable_path(world, LANE, start, rho=1.0, clearance=0.3)
+    assert drawn is not None and drawn.cusp == 0
+    path = drawn.points
     np.testing.assert_allclose(path[0], [2.0, 2.0])
     np.testing.assert_allclose(path[-1], [10.0, 2.0])
     assert path[:, 0].min() < -0.5  # it turned in the hall
@@ -87,6 +94,28 @@ def test_a_start_facing_away_in_a_narrow_lane_drives_off_to_turn_where_there_is_
     assert _turns(path).max() <= 1.0 / 1.0 + 0.05
     assert not world.in_collision(path, 0.3).any()
     assert np.linalg.norm(np.diff(path, axis=0), axis=1).max() <= STEP + 1e-9
+
+
+def test_a_start_facing_a_wall_backs_into_a_side_opening_to_turn() -> None:
+    """A 1.6 m lane, a wall 1 m ahead of the car, facing away from the polyline: no forward
+    piece fits; the car backs up into the hall that opens north of the lane (a three-point
+    turn), then drives out along the lane."""
+    walls = [
+        Box(np.array([-0.5, -6.0]), np.array([12.0, 1.2])),
+        Box(np.array([-0.5, 2.8]), np.array([3.5, 8.0])),
+        Box(np.array([7.5, 2.8]), np.array([12.0, 8.0])),
+        Box(np.array([-0.5, -6.0]), np.array([1.0, 8.0])),
+    ]
+    world = World(np.array([[-0.5, 12.0], [-6.0, 8.0]]), walls, {})
+    drawn = drivable_path(world, LANE, Pose(np.array([2.0, 2.0]), math.pi), rho=1.0, clearance=0.3)
+    assert drawn is not None and drawn.cusp > 0
+    path, lead = drawn.points, drawn.points[: drawn.cusp + 1]
+    assert lead[1, 0] > lead[0, 0]  # backing off: the car faces west and moves east
+    assert lead[-1, 1] > 2.8  # into the hall
+    np.testing.assert_allclose(path[-1], [10.0, 2.0])
+    assert _turns(path[drawn.cusp :]).max() <= 1.0 / 1.0 + 0.05
+    assert _turns(lead).max() <= 1.0 / 1.0 + 0.05
+    assert not world.in_collision(path, 0.3).any()
 
 
 def test_no_room_to_turn_gives_none() -> None:
