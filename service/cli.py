@@ -86,20 +86,21 @@ def plan(
     plot_out: Annotated[Path | None, typer.Option("--plot", help="Write a picture (PNG).")] = None,
     seed: Annotated[int | None, typer.Option(help="Override planner.seed.")] = None,
 ) -> None:
-    """Plan a mission: formula -> Büchi automaton -> pruned -> TL-RRT* lasso -> sub-tasks."""
+    """Plan a mission (within ``LTLNAV_MAX_...``): formula -> automaton -> lasso -> sub-tasks."""
     from planner.plan import plan_mission, verify_plan
-    from workers.mission import load_mission
+    from service.settings import get_settings
+    from workers.admission import admitted_automaton, load_admitted
 
     try:
-        spec = load_mission(mission)
-        options = spec.planner_options()
-        if seed is not None:
-            options = options.model_copy(update={"seed": seed})
-        world = spec.build_world()
-        result = plan_mission(world, spec.task, spec.robot.position(), spec.robot.radius, options)
+        limits = get_settings().admission_limits()
+        spec = load_admitted(mission, limits)
+        options = spec.planner_options().model_copy(update={} if seed is None else {"seed": seed})
+        world, robot = spec.build_world(), spec.robot
+        nba = admitted_automaton(spec, world, limits)
+        result = plan_mission(world, spec.task, robot.position(), robot.radius, options, nba)
     except LtlnavError as error:
         raise _fail(error) from error
-    problems = verify_plan(result, world, spec.robot.radius)
+    problems = verify_plan(result, world, robot.radius)
     if problems:
         typer.echo(
             "error: internal check of the plan failed:\n  " + "\n  ".join(problems), err=True

@@ -15,6 +15,9 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from planner.errors import AutomatonTooLargeError
+from planner.geometry.world import World
+from planner.ltl.automaton import Buchi
 from planner.ltl.formula import (
     Eventually,
     Formula,
@@ -26,8 +29,18 @@ from planner.ltl.formula import (
     parse,
 )
 from planner.ltl.formula import children as formula_children
+from planner.plan import translate_task
 from workers.documents import read_document
-from workers.limits import AdmissionLimits, Problem, count_over, number, over
+from workers.limits import (
+    AdmissionLimits,
+    Problem,
+    automaton_problems,
+    count_over,
+    number,
+    over,
+    translation_budget,
+    translation_problems,
+)
 from workers.mission import MissionError, MissionSpec, parse_mission
 from workers.training_spec import TrainingSpec
 
@@ -293,3 +306,19 @@ def servable_problems(mission: MissionSpec) -> list[tuple[str, str]]:
             )
         ]
     return []
+
+
+def admitted_automaton(mission: MissionSpec, world: World, limits: AdmissionLimits) -> Buchi:
+    """The mission's automaton, translated within ``limits``: ``MissionError`` on ``task`` when
+    the translation outgrows ``translation_budget`` or the automaton, pruned for the world, has
+    more states than ``limits.max_automaton_states``."""
+    try:
+        nba, pruned = translate_task(
+            mission.task, world, mission.robot.radius, translation_budget(limits)
+        )
+    except AutomatonTooLargeError as error:
+        raise MissionError(translation_problems(limits)) from error
+    too_large = automaton_problems(nba.num_states, pruned.num_states, limits)
+    if too_large:
+        raise MissionError(too_large)
+    return nba

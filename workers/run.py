@@ -29,10 +29,10 @@ import torch
 
 from envs.mission_env import MissionEnv
 from planner.decompose import lasso_stages
-from planner.errors import AutomatonTooLargeError, PlanningError
-from planner.plan import MissionPlan, plan_mission, translate_task, verify_plan
+from planner.errors import PlanningError
+from planner.plan import MissionPlan, plan_mission, verify_plan
 from planner.serialize import plan_from_dict, plan_to_dict
-from workers.admission import servable_problems
+from workers.admission import admitted_automaton, servable_problems
 from workers.atomic import write_json
 from workers.evaluation import (
     LaneShare,
@@ -51,12 +51,7 @@ from workers.handover_repair import (
 )
 from workers.hooks import TrainingHooks
 from workers.jobs import SubtaskJob, job_seed
-from workers.limits import (
-    AdmissionLimits,
-    automaton_problems,
-    translation_budget,
-    translation_problems,
-)
+from workers.limits import AdmissionLimits
 from workers.mission import MissionError, MissionSpec, parse_mission
 from workers.policy_act import deterministic_act
 from workers.training import ALGORITHMS, TrainResult, train_subtask
@@ -304,14 +299,7 @@ def stored_or_new_plan(
             warnings.warn(f"planning anew: {stored} holds no usable plan ({error!r})", stacklevel=2)
     world = mission.build_world()
     radius = mission.robot.radius
-    limits = limits or AdmissionLimits()
-    try:
-        nba, pruned = translate_task(mission.task, world, radius, translation_budget(limits))
-    except AutomatonTooLargeError as error:
-        raise MissionError(translation_problems(limits)) from error
-    too_large = automaton_problems(nba.num_states, pruned.num_states, limits)
-    if too_large:
-        raise MissionError(too_large)
+    nba = admitted_automaton(mission, world, limits or AdmissionLimits())
     plan = plan_mission(world, mission.task, mission.robot.position(), radius, options, nba)
     problems = verify_plan(plan, world, radius)
     if problems:

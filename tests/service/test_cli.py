@@ -107,6 +107,19 @@ def test_plan_bad_mission_names_the_field(tmp_path: Path) -> None:
     assert "world.regions.a.ball.radius" in result.output
 
 
+def test_plan_refuses_an_automaton_over_the_admission_limit(tmp_path: Path) -> None:
+    """``ltlnav plan`` keeps the limits ``validate``, ``train`` and the service keep: an
+    any-order visit of 12 regions (4096 states, 37 s to translate) is refused at once."""
+    many = json.loads(json.dumps(GF3))
+    many["task"] = " && ".join(f"<>g{i}" for i in range(12))
+    many["world"]["regions"] = {
+        f"g{i}": {"ball": {"center": [0.3 + 0.3 * i, 3.5], "radius": 0.1}} for i in range(12)
+    }
+    result = runner.invoke(app, ["plan", str(write(tmp_path, many))])
+    assert result.exit_code == EXIT_BAD_INPUT, result.output
+    assert "LTLNAV_MAX_AUTOMATON_STATES" in result.output
+
+
 def test_validate_accepts_every_example() -> None:
     for path in sorted(EXAMPLES.glob("*.yaml")):
         result = runner.invoke(app, ["validate", str(path)])
