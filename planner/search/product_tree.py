@@ -203,7 +203,8 @@ class ProductTree:
         if count == 0:
             return []
         nids = np.arange(first, first + count)
-        fresh = ~(self.node_at[pids] >= 0).any(axis=1)
+        at_points, first_at = np.unique(pids, return_index=True)
+        unseen = ~(self.node_at[at_points] >= 0).any(axis=1)
         self.node_at[pids, qs] = nids
         parents = self.node_at[parent_pids, parent_qs]
         assert (parents >= 0).all(), "Dijkstra's predecessor is cheaper, hence exists already"
@@ -220,9 +221,7 @@ class ProductTree:
         self.children.extend([] for _ in range(count))
         for nid, parent in zip(nids.tolist(), parent_list, strict=True):
             self.children[parent].append(nid)
-        fresh_pids = pids[fresh]
-        _, first_at = np.unique(fresh_pids, return_index=True)
-        reached = fresh_pids[np.sort(first_at)]
+        reached = pids[np.sort(first_at[unseen])]  # points new to the tree, in order
         self.reached.add_many(reached, self.pos[reached])
         for pid in reached.tolist():
             self.entered |= self.mask[pid]

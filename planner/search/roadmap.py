@@ -65,12 +65,17 @@ def product_shortest_paths(
     a = np.concatenate([u, v[back]])
     b = np.concatenate([v, u[back]])
     w = np.concatenate([d, d[back]])
-    rows, cols, weights = [], [], []
-    for q in range(q_count):
-        edge, q2 = np.nonzero(reach[labels[b], q, :])
-        rows.append(a[edge] * q_count + q)
-        cols.append(b[edge] * q_count + q2)
-        weights.append(w[edge])
+    # Grouped by the label of the edge's head: each label's transitions are listed once, not
+    # looked up per edge and state (edges x states^2 for any-order tasks of 2^k states).
+    label_b = labels[b]
+    none = np.empty(0, dtype=np.int64)
+    rows, cols, weights = [none], [none], [np.empty(0)]
+    for label in np.unique(label_b):
+        edge = np.flatnonzero(label_b == label)
+        q, q2 = np.nonzero(reach[label])
+        rows.append((a[edge][:, None] * q_count + q).ravel())
+        cols.append((b[edge][:, None] * q_count + q2).ravel())
+        weights.append(np.repeat(w[edge], len(q)))
     size = n_points * q_count
     # Each geometric edge is there once and each (edge, q, q') once: no product edge repeats.
     graph = csr_matrix(

@@ -45,3 +45,11 @@ def test_repeated_edges_and_loops_count_once_at_their_least_length() -> None:
     reached = np.isfinite(cost)
     assert reached.sum() > points  # the product spreads over several states
     assert ((pred >= 0) == reached).sum() == reached.size - 1  # every node but the root
+
+
+def test_a_roadmap_without_edges_reaches_the_roots_alone() -> None:
+    empty = np.empty(0, dtype=np.int64)
+    reach = np.ones((2, 3, 3), dtype=bool)
+    cost, pred = product_shortest_paths(empty, empty, np.empty(0), np.zeros(4, int), reach, [0])
+    assert np.isfinite(cost).sum() == 1 and cost[0, 0] == 0.0
+    assert (pred < 0).all()
