@@ -258,6 +258,10 @@ def build_course(
     for k, (sub, guide, track) in enumerate(zip(subtasks, guides, tracks, strict=True)):
         goal = RegionTest(world.regions[sub.goal]) if sub.goal else None
         headings = [heading_along(guide.centers[i:]) for i in range(guide.num_balls)]
+        cusp = track.cusp_togo
+        if cusp is not None:  # balls of a reversing lead: the car faces back along it
+            lead = np.asarray(track.ball_togo) > cusp
+            headings = [h + math.pi * bool(on) for h, on in zip(headings, lead, strict=True)]
         tracker = ProgressTracker(guide, window=window)
         rest = sum(lengths[k + 1 :])
         legs.append(Leg(sub, guide, tracker, offset, rest, goal, headings, track))

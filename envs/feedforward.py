@@ -21,9 +21,11 @@ turning radii along the leg's :class:`Track` past the robot's projection on it, 
 command is the curvature of the arc through it in units of the tightest curvature. On a guide
 the car can drive (``EnvOptions.drivable_guide``) the track is the dense redrawn path, and this
 tracks the loops and curves that the heading law, or pursuit of the chords between the balls,
-cuts. Along a redrawn path's reversing lead (a three-point turn, ``Track.cusp_togo``) the law
-drives backwards: the forward command negated, the target no further than the cusp, and the
-turn that of pursuit facing the other way, negated (a car backing up turns the other way).
+cuts. Along a redrawn path's reversing lead (a three-point turn, ``Track.cusp``) the law drives
+backwards, from entering the leg until the car's projection on the lead comes within
+``CUSP_REACHED`` of its end: the forward command negated, the target no further than the cusp,
+and the turn that of pursuit facing the other way, negated (a car backing up turns the other
+way). Past the cusp, the projection is kept off the lead.
 """
 
 from __future__ import annotations
@@ -71,8 +73,8 @@ chord cuts the towers' corners where the r-balls are wide)."""
 
 
 CUSP_REACHED = 0.05
-"""Metres short of the end of a reversing lead (``Track.cusp_togo``) from which the pursuit law
-drives forwards again."""
+"""Metres short of the end of a reversing lead (``Track.cusp``) from which the pursuit law
+drives forwards again, until the car enters a leg anew."""
 
 
 WORLD_FRAME_ROBOTS = frozenset({"point", "quadrotor"})
@@ -153,9 +155,8 @@ class Track:
     """``(m,)`` path length from each point to the end (non-increasing)."""
     ball_togo: np.ndarray
     """``(n,)`` path length from each of the guide's balls to the end."""
-    cusp_togo: float | None = None
-    """Path length to the end from where a reversing lead ends (None: no lead); the car
-    backs up while its projection on the track has more than this to go."""
+    cusp: int = 0
+    """``points[: cusp + 1]`` are a reversing lead, driven backwards (0: none)."""
     neg_togo: np.ndarray = field(init=False, repr=False, compare=False)
     """``-togo`` (non-decreasing, for ``searchsorted``)."""
     _stretches: dict[int, Stretch] = field(
@@ -178,8 +179,20 @@ class Track:
         pts = np.asarray(points, dtype=float)
         along = arc_lengths(pts)
         total = float(along[-1])
-        cusp_togo = total - float(along[cusp]) if cusp > 0 else None
-        return cls(pts, total - along, total - np.linspace(0.0, total, balls), cusp_togo)
+        return cls(pts, total - along, total - np.linspace(0.0, total, balls), cusp)
+
+    @property
+    def cusp_togo(self) -> float | None:
+        """Path length from the end of the reversing lead to the end (None: no lead)."""
+        return float(self.togo[self.cusp]) if self.cusp > 0 else None
+
+    @property
+    def lead(self) -> Stretch:
+        """The segments of the reversing lead (worked out once)."""
+        found = self._stretches.get(-2)
+        if found is None:
+            found = self._stretches[-2] = Stretch.between(self.points, 0, max(self.cusp, 1))
+        return found
 
     def stretch(self, index: int) -> Stretch:
         """The segments of the track from ball ``index - 1`` to ball ``index + 4`` (``index``
@@ -209,6 +222,11 @@ class Stretch:
         near = track.ball_togo[min(max(index, 0) + 4, n - 1)]
         lo = min(max(int(np.searchsorted(neg_togo, -far, side="right")) - 1, 0), m - 2)
         hi = max(min(int(np.searchsorted(neg_togo, -near, side="left")), m - 1), lo + 1)
+        return cls.between(points, lo, hi)
+
+    @classmethod
+    def between(cls, points: np.ndarray, lo: int, hi: int) -> Stretch:
+        """Segments ``lo`` to ``hi - 1`` of the path ``points``."""
         a, seg = points[lo:hi], points[lo + 1 : hi + 1] - points[lo:hi]
         length_sq = np.maximum(np.einsum("ij,ij->i", seg, seg), 1e-18)
         return cls(lo, a, seg, length_sq, np.sqrt(length_sq))
@@ -227,12 +245,21 @@ def projected_togo(track: Track, index: int, x: Sequence[float] | np.ndarray) ->
     ball ``index - 1`` to ball ``index + 4``."""
     if len(track.points) == 1:
         return 0.0
-    st = track.stretch(index)
+    return _projected(track.stretch(index), track.togo, x)
+
+
+def lead_togo(track: Track, x: Sequence[float] | np.ndarray) -> float:
+    """Path length to the end of ``track`` from the projection of ``x`` on its reversing lead
+    alone (where the rest of the path passes near the lead, it must not capture ``x``)."""
+    return _projected(track.lead, track.togo, x)
+
+
+def _projected(st: Stretch, togo: np.ndarray, x: Sequence[float] | np.ndarray) -> float:
     point = np.asarray(x, dtype=float)
     t = np.clip(np.einsum("ij,ij->i", point - st.a, st.seg) / st.length_sq, 0.0, 1.0)
     gap = st.a + t[:, None] * st.seg - point
     j = int(np.argmin(np.einsum("ij,ij->i", gap, gap)))
-    return float(track.togo[st.lo + j]) - t[j] * float(st.length[j])
+    return float(togo[st.lo + j]) - t[j] * float(st.length[j])
 
 
 def point_to_go(track: Track, left: float) -> np.ndarray:
@@ -297,6 +324,13 @@ class ActionShaping:
                 )
         self.active = self.forward is not None or self.gain is not None
         """Whether actions change at all."""
+        self._lead_of: Track | None = None
+        """The track whose reversing lead the car has driven since it entered it."""
+
+    def enter(self) -> None:
+        """A leg begins (an episode, or the next leg of a course): its reversing lead, if it
+        has one, is to be driven."""
+        self._lead_of = None
 
     def apply(self, action: np.ndarray, track: Track, index: int) -> np.ndarray:
         """``action``, validated (a bad action must not be mapped into the box and slip
@@ -313,14 +347,19 @@ class ActionShaping:
         if self.gain is not None:
             x = robot.position()
             if self.pursuit:
-                on = projected_togo(track, index, x)
                 cusp = track.cusp_togo
-                backwards = cusp is not None and on > cusp + CUSP_REACHED
+                if cusp is not None and self._lead_of is not track:
+                    on = lead_togo(track, x)
+                    backwards = on > cusp + CUSP_REACHED
+                    if not backwards:
+                        self._lead_of = track
                 if backwards:
                     assert cusp is not None
                     target = point_to_go(track, max(on - self.ahead, cusp))
                     turn = -pursuit_turn(robot.heading() + math.pi, x, target, self.pursuit)
                 else:
+                    on = projected_togo(track, index, x)
+                    on = on if cusp is None else min(on, cusp)
                     target = point_to_go(track, on - self.ahead)
                     turn = pursuit_turn(robot.heading(), x, target, self.pursuit)
             else:

@@ -216,6 +216,7 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         """Track leg ``k`` from point ``x``; ``ball`` >= 0 is a curriculum start ball."""
         leg = self.legs[k]
         self._leg, self._leg_k = leg, k
+        self._shaping.enter()
         index = max(ball, leg.tracker.locate(x, ball))
         if index >= 0:
             leg.tracker.reset(0, start_index=index)

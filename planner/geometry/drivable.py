@@ -36,6 +36,10 @@ TURN_AROUND_REACH = 6
 TURN_AROUND_HEADINGS = 8
 """Headings tried at each turn-around position."""
 
+REVERSE_WEIGHT = 3.0
+"""How much longer a metre driven backwards counts than one driven forwards, when turn-arounds
+are ranked: a short back-up then a drive forwards, rather than a long reversing loop."""
+
 TURN_AROUND_TRIES = 200
 """Drivable turn-around pieces tried, shortest first, before the redraw gives up."""
 
@@ -145,8 +149,9 @@ def drivable_path(
     cost = [math.inf] * count
     parent = [-2] * count
     pieces: list[np.ndarray | None] = [None] * count
+    cusps = [0] * count
 
-    def relax(source: int, origin: Pose, base: float, lo: float, lead: np.ndarray | None) -> None:
+    def relax(source: int, origin: Pose, base: float, lo: float, lead: Lead | None = None) -> None:
         for j in range(count):
             if nodes[j].along < lo or nodes[j].along > lo + span:
                 continue
@@ -158,21 +163,20 @@ def drivable_path(
                     break
                 pts = checker.points(piece)
                 if pts is not None:
-                    joined = pts if lead is None else np.vstack([lead, pts[1:]])
+                    joined = pts if lead is None else np.vstack([lead.points, pts[1:]])
                     cost[j], parent[j], pieces[j] = total, source, joined
+                    cusps[j] = 0 if lead is None else lead.cusp
                     break
 
-    relax(-1, start, 0.0, 0.0, None)
-    cusp = 0
+    relax(-1, start, 0.0, 0.0)
     join = next((n for n in nodes if n.along >= 2.0 * rho), nodes[-1]).pose
     for backwards in (False, True):
         if any(math.isfinite(c) for c in cost):
             break
-        for length, lead, pose in _turn_arounds(checker, start, join, rho, backwards):
-            relax(-1, pose, length, 0.0, lead)
-            if any(math.isfinite(c) for c in cost):
-                cusp = len(lead) - 1 if backwards else 0
-                break
+        for lead in _turn_arounds(checker, start, join, rho, backwards):
+            relax(-1, lead.end, lead.cost, 0.0, lead)
+            if not backwards and any(math.isfinite(c) for c in cost):
+                break  # backing up, every lead is tried: the cheapest chain wins
     for i in range(count):
         if math.isfinite(cost[i]):
             relax(i, nodes[i].pose, cost[i], nodes[i].along, None)
@@ -185,9 +189,9 @@ def drivable_path(
         piece = pieces[j]
         assert piece is not None
         chain.append(piece)
-        j = parent[j]
+        first, j = j, parent[j]
     chain.reverse()
-    return DrivablePath(np.vstack([chain[0], *(c[1:] for c in chain[1:])]), cusp)
+    return DrivablePath(np.vstack([chain[0], *(c[1:] for c in chain[1:])]), cusps[first])
 
 
 def _backwards(pose: Pose) -> Pose:
@@ -196,15 +200,27 @@ def _backwards(pose: Pose) -> Pose:
     return Pose(pose.position, pose.heading + math.pi)
 
 
+@dataclass(frozen=True)
+class Lead:
+    """A turn-around piece: its ``points``, the pose it ends in, its ``cost`` (its length,
+    ``REVERSE_WEIGHT`` times it backing up) and ``cusp`` (its last point's index backing up,
+    else 0)."""
+
+    points: np.ndarray
+    end: Pose
+    cost: float
+    cusp: int
+
+
 def _turn_arounds(
     checker: _Checker, start: Pose, join: Pose, rho: float, backwards: bool = False
-) -> Iterator[tuple[float, np.ndarray, Pose]]:
-    """Drivable Dubins pieces from ``start`` to poses around it, as (length, points, end pose),
-    those from which ``join`` looks nearest first: where no piece joins the start to the
-    polyline (the car faces away with no room for a loop on the spot), it may first drive off
-    (``backwards``: back off) to where it can turn. Poses lie on a grid ``rho`` apart within
-    ``TURN_AROUND_REACH`` turning radii, ``TURN_AROUND_HEADINGS`` headings each; at most
-    ``TURN_AROUND_TRIES`` drivable ones are offered."""
+) -> Iterator[Lead]:
+    """Drivable Dubins pieces from ``start`` to poses around it, those from which ``join``
+    looks nearest first: where no piece joins the start to the polyline (the car faces away
+    with no room for a loop on the spot), it may first drive off (``backwards``: back off) to
+    where it can turn. Poses lie on a grid ``rho`` apart within ``TURN_AROUND_REACH`` turning
+    radii, ``TURN_AROUND_HEADINGS`` headings each; at most ``TURN_AROUND_TRIES`` drivable ones
+    are offered."""
     steps = np.arange(-TURN_AROUND_REACH, TURN_AROUND_REACH + 1) * rho
     centre = np.asarray(start.position, dtype=float)
     headings = np.arange(TURN_AROUND_HEADINGS) * (2 * math.pi / TURN_AROUND_HEADINGS)
@@ -221,15 +237,20 @@ def _turn_arounds(
                 words = dubins_words(start, pose, rho)
             onward = dubins_words(pose, join, rho)
             if words and onward:
-                candidates.append((words[0].length + onward[0].length, len(candidates), words))
+                cost = (REVERSE_WEIGHT if backwards else 1.0) * words[0].length
+                candidates.append((cost + onward[0].length, len(candidates), words))
     candidates.sort(key=lambda c: (c[0], c[1]))
     tries = 0
     for _, _, words in candidates:
         for word in words:
             pts = checker.points(word)
             if pts is not None:
-                end = word.end()
-                yield word.length, pts, _backwards(end) if backwards else end
+                if backwards:
+                    yield Lead(
+                        pts, _backwards(word.end()), REVERSE_WEIGHT * word.length, len(pts) - 1
+                    )
+                else:
+                    yield Lead(pts, word.end(), word.length, 0)
                 tries += 1
                 break
         if tries >= TURN_AROUND_TRIES:

@@ -71,5 +71,9 @@ def test_the_pursuit_feedforward_alone_makes_the_three_point_turn() -> None:
                     break
             assert info["is_success"], info
             assert backed
+        lead = env.legs[0]
+        # a curriculum start on the lead faces back along it, as the car does there
+        assert math.cos(lead.headings[0] - math.pi) > 0.9
+        assert math.cos(lead.headings[-1]) > 0.9  # the last ball, in the lane, faces east
     finally:
         env.close()
