@@ -24,9 +24,11 @@ from typing import Any
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.append(str(Path(__file__).resolve().parent))  # after the packages: bench/planner.py
 
 import numpy as np  # noqa: E402
 import yaml  # noqa: E402
+from random_worlds import _ball  # noqa: E402
 
 from planner.geometry.world_spec import WorldSpec  # noqa: E402
 from planner.search.reachability import unreachable_regions  # noqa: E402
@@ -44,19 +46,17 @@ def mission(seed: int) -> dict[str, Any]:
     rng = np.random.default_rng(seed)
     radii = rng.uniform(0.15, 0.4, TREES)
     centres = rng.uniform(0.0, SIZE, (TREES, 2))
-    trees = [
-        {"ball": {"center": [round(float(v), 3) for v in c], "radius": round(float(r), 3)}}
-        for c, r in zip(centres, radii, strict=True)
-    ]
+    trees = [_ball(c, float(r)) for c, r in zip(centres, radii, strict=True)]
     base: dict[str, Any] = {"bounds": [[0.0, SIZE], [0.0, SIZE]], "obstacles": trees}
     world = WorldSpec.model_validate({**base, "regions": {}}).build()
     start = world.sample_free(rng, 1, RADIUS + 0.5)[0]
     regions: dict[str, Any] = {}
     while len(regions) < 2:
         centre = world.sample_free(rng, 1, 1.0 + RADIUS)[0]
-        if any(np.linalg.norm(centre - p) < 6.0 for p in [start, *regions_centres(regions)]):
+        placed = [np.array(r["ball"]["center"]) for r in regions.values()]
+        if any(np.linalg.norm(centre - p) < 6.0 for p in [start, *placed]):
             continue
-        trial = {**regions, f"g{len(regions) + 1}": ball(centre, 1.0)}
+        trial = {**regions, f"g{len(regions) + 1}": _ball(centre, 1.0)}
         built = WorldSpec.model_validate({**base, "regions": trial}).build()
         if not unreachable_regions(built, start, RADIUS, list(trial)):
             regions = trial
@@ -72,14 +72,6 @@ def mission(seed: int) -> dict[str, Any]:
         "planner": {"seed": 0},
         "world": {**base, "regions": regions},
     }
-
-
-def ball(centre: np.ndarray, radius: float) -> dict[str, Any]:
-    return {"ball": {"center": [round(float(v), 3) for v in centre], "radius": radius}}
-
-
-def regions_centres(regions: dict[str, Any]) -> list[np.ndarray]:
-    return [np.array(r["ball"]["center"]) for r in regions.values()]
 
 
 def controller_rates(document: dict[str, Any], episodes: int, folder: Path) -> list[float]:

@@ -224,6 +224,7 @@ def _turn_arounds(
     steps = np.arange(-TURN_AROUND_REACH, TURN_AROUND_REACH + 1) * rho
     centre = np.asarray(start.position, dtype=float)
     headings = np.arange(TURN_AROUND_HEADINGS) * (2 * math.pi / TURN_AROUND_HEADINGS)
+    weight = REVERSE_WEIGHT if backwards else 1.0
     candidates: list[tuple[float, int, list[DubinsPath]]] = []
     for dx, dy in itertools.product(steps, steps):
         position = centre + np.array([dx, dy])
@@ -237,20 +238,16 @@ def _turn_arounds(
                 words = dubins_words(start, pose, rho)
             onward = dubins_words(pose, join, rho)
             if words and onward:
-                cost = (REVERSE_WEIGHT if backwards else 1.0) * words[0].length
-                candidates.append((cost + onward[0].length, len(candidates), words))
+                cost = weight * words[0].length + onward[0].length
+                candidates.append((cost, len(candidates), words))
     candidates.sort(key=lambda c: (c[0], c[1]))
     tries = 0
     for _, _, words in candidates:
         for word in words:
             pts = checker.points(word)
             if pts is not None:
-                if backwards:
-                    yield Lead(
-                        pts, _backwards(word.end()), REVERSE_WEIGHT * word.length, len(pts) - 1
-                    )
-                else:
-                    yield Lead(pts, word.end(), word.length, 0)
+                end, cusp = (_backwards(word.end()), len(pts) - 1) if backwards else (word.end(), 0)
+                yield Lead(pts, end, weight * word.length, cusp)
                 tries += 1
                 break
         if tries >= TURN_AROUND_TRIES:
