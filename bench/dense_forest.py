@@ -29,14 +29,11 @@ sys.path.append(str(Path(__file__).resolve().parent))  # after the packages: ben
 import numpy as np  # noqa: E402
 import yaml  # noqa: E402
 from random_worlds import _ball  # noqa: E402
+from zero_grid import controller_rates  # noqa: E402
 
 from planner.geometry.world_spec import WorldSpec  # noqa: E402
 from planner.search.reachability import unreachable_regions  # noqa: E402
-from workers.control import zero_action  # noqa: E402
-from workers.evaluation import evaluate_subtask  # noqa: E402
-from workers.mission import MissionError, parse_mission  # noqa: E402
-from workers.run import stored_or_new_plan  # noqa: E402
-from workers.training import subtask_env  # noqa: E402
+from workers.mission import MissionError  # noqa: E402
 
 SIZE, TREES, RADIUS = 20.0, 70, 0.27
 
@@ -51,7 +48,7 @@ def mission(seed: int) -> dict[str, Any]:
     world = WorldSpec.model_validate({**base, "regions": {}}).build()
     start = world.sample_free(rng, 1, RADIUS + 0.5)[0]
     regions: dict[str, Any] = {}
-    while len(regions) < 2:
+    for _ in range(1000):
         centre = world.sample_free(rng, 1, 1.0 + RADIUS)[0]
         placed = [np.array(r["ball"]["center"]) for r in regions.values()]
         if any(np.linalg.norm(centre - p) < 6.0 for p in [start, *placed]):
@@ -60,6 +57,10 @@ def mission(seed: int) -> dict[str, Any]:
         built = WorldSpec.model_validate({**base, "regions": trial}).build()
         if not unreachable_regions(built, start, RADIUS, list(trial)):
             regions = trial
+        if len(regions) == 2:
+            break
+    else:
+        raise ValueError(f"seed {seed}: no two reachable goals fit")
     heading = round(float(rng.uniform(-np.pi, np.pi)), 3)
     return {
         "name": f"racecar-dense-forest-{seed}",
@@ -72,21 +73,6 @@ def mission(seed: int) -> dict[str, Any]:
         "planner": {"seed": 0},
         "world": {**base, "regions": regions},
     }
-
-
-def controller_rates(document: dict[str, Any], episodes: int, folder: Path) -> list[float]:
-    """Zero-action success rate of each sub-task from its real starts."""
-    spec = parse_mission(document)
-    plan = stored_or_new_plan(spec, folder)
-    rates = []
-    for k in range(len(plan.subtasks)):
-        env = subtask_env(spec, plan, spec.training, k, evaluation=True)
-        try:
-            act = zero_action(env.robot.action_dim)
-            rates.append(evaluate_subtask(act, [env], episodes, seed=0).success_rate)
-        finally:
-            env.close()
-    return rates
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -17,6 +17,7 @@ import json
 import os
 import sys
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 ROOT = Path(__file__).resolve().parents[1]
@@ -43,12 +44,18 @@ def world_rates(
     if margin is not None:
         doc["planner"]["margin"] = margin
     doc["training"] = {"env": env}
-    mission = parse_mission(doc)
     try:
-        plan = stored_or_new_plan(mission, out / f"{robot}-{seed}-margin-{margin}")
+        return controller_rates(doc, episodes, out / f"{robot}-{seed}-margin-{margin}")
     except MissionError as error:
         print(f"seed {seed}: no plan ({error})", flush=True)
         return None
+
+
+def controller_rates(doc: dict[str, Any], episodes: int, folder: Path) -> list[float]:
+    """Zero-action success rate of every sub-task of the mission ``doc`` from its real starts,
+    its plan kept in ``folder`` (``MissionError``: no plan)."""
+    mission = parse_mission(doc)
+    plan = stored_or_new_plan(mission, folder)
     rates = []
     for k in range(len(plan.subtasks)):
         lanes = [
