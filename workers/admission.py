@@ -13,11 +13,9 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from planner.errors import AutomatonTooLargeError
-from planner.geometry.world import World
-from planner.ltl.automaton import Buchi
 from planner.ltl.formula import (
     Eventually,
     Formula,
@@ -29,7 +27,6 @@ from planner.ltl.formula import (
     parse,
 )
 from planner.ltl.formula import children as formula_children
-from planner.plan import translate_task
 from workers.documents import read_document
 from workers.limits import (
     AdmissionLimits,
@@ -43,6 +40,10 @@ from workers.limits import (
 )
 from workers.mission import MissionError, MissionSpec, parse_mission
 from workers.training_spec import TrainingSpec
+
+if TYPE_CHECKING:
+    from planner.geometry.world import World
+    from planner.ltl.automaton import Buchi
 
 _TEMPORAL = (Until, Release, WeakUntil, Globally, Eventually, Next)
 
@@ -312,6 +313,8 @@ def admitted_automaton(mission: MissionSpec, world: World, limits: AdmissionLimi
     """The mission's automaton, translated within ``limits``: ``MissionError`` on ``task`` when
     the translation outgrows ``translation_budget`` or the automaton, pruned for the world, has
     more states than ``limits.max_automaton_states``."""
+    from planner.plan import translate_task  # the planner: not for the API's admission
+
     try:
         nba, pruned = translate_task(
             mission.task, world, mission.robot.radius, translation_budget(limits)
