@@ -56,6 +56,7 @@ REFERENCE_TLRRT = {  # XushengLuo/TLRRT_star measured here: median (range) over 
     "tlrrt-gf3": ("0.21 (0.10-0.71)", "1.79 (1.58-2.52)"),
     "tlrrt-case1": ("0.20 (0.09-0.57)", "1.13 (0.82-1.59)"),
 }
+"""Its workspaces are planned for a point of radius 0 with no margin, as the reference plans."""
 LTL2BA_SIZES = {
     "car-phi2-fin": "5 / 15",
     "car-phi2-inf": "9 / 43",
@@ -92,10 +93,11 @@ spec = load_mission(sys.argv[1])
 seed = int(sys.argv[2])
 world = spec.build_world()
 start, radius = spec.robot.position(), spec.robot.radius
-first_options = spec.planner_options().model_copy(
-    update={"seed": seed, "refine_seconds": 0.0, "shortcut": False}
-)
-final_options = spec.planner_options().model_copy(update={"seed": seed})
+options = spec.planner_options()
+if len(sys.argv) > 3:
+    options = options.model_copy(update={"margin": float(sys.argv[3])})
+first_options = options.model_copy(update={"seed": seed, "refine_seconds": 0.0, "shortcut": False})
+final_options = options.model_copy(update={"seed": seed})
 try:
     began = time.process_time()
     first = plan_mission(world, spec.task, start, radius, first_options)
@@ -118,8 +120,9 @@ print(json.dumps({
 def run_once(mission: Path, seed: int, tree: Path = ROOT) -> Run | None:
     """Plan ``mission`` with ``seed`` using the planner of checkout ``tree`` (fresh interpreter)."""
     env = {**os.environ, "PYTHONPATH": str(tree), "OMP_NUM_THREADS": "1"}
+    margin = ["0"] if mission.stem in REFERENCE_TLRRT else []
     out = subprocess.run(
-        [sys.executable, "-c", WORKER, str(mission), str(seed)],
+        [sys.executable, "-c", WORKER, str(mission), str(seed), *margin],
         cwd=tree,
         env=env,
         capture_output=True,
