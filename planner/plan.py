@@ -147,10 +147,11 @@ def plan_mission(
     margin = opts.margin or 0.0
     for share in MARGIN_SHARES if margin else ():
         try:
-            return _plan(world, task, start, clearance + share * margin, capped, nba, True)
+            held = clearance + share * margin
+            return _plan(world, task, start, held, capped, nba, True, clearance + margin)
         except PlanningError:
             pass  # too narrow somewhere with this margin: try less of it
-    return _plan(world, task, start, clearance, opts, nba)
+    return _plan(world, task, start, clearance, opts, nba, hold=clearance + margin)
 
 
 def _plan(
@@ -161,6 +162,7 @@ def _plan(
     opts: PlannerSpec,
     nba: Buchi | None,
     give_up_cut_off: bool = False,
+    hold: float = 0.0,
 ) -> MissionPlan:
     t0 = time.process_time()
     if nba is None:
@@ -171,7 +173,7 @@ def _plan(
     t_translate = time.process_time() - t0
     rng = np.random.default_rng(opts.seed)
     lasso = plan_lasso(
-        world, pruned, np.asarray(start, dtype=float), clearance, opts, rng, give_up_cut_off
+        world, pruned, np.asarray(start, dtype=float), clearance, opts, rng, give_up_cut_off, hold
     )
     subtasks = decompose(lasso, pruned, world)
     eta = opts.eta if opts.eta is not None else default_eta(world)

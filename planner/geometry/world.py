@@ -83,6 +83,21 @@ class _ShapeSet:
             out[:, i] = poly.contains(p, margin)
         return out
 
+    def nearest(self, p: FloatArray) -> FloatArray:
+        """(n,) distance of each point to the nearest shape (0 inside one, inf: no shapes)."""
+        out = np.full(len(p), np.inf)
+        for i in range(0, len(p), _CHUNK):
+            chunk = p[i : i + _CHUNK]
+            near = out[i : i + _CHUNK]
+            if self.box_idx.size:
+                np.minimum(near, np.sqrt(self._box_sqdist(chunk).min(axis=1)), out=near)
+            if self.ball_idx.size:
+                gaps = np.sqrt(self._ball_sqdist(chunk)) - self.ball_r
+                np.minimum(near, np.maximum(gaps.min(axis=1), 0.0), out=near)
+            for _, poly in self.polygons:
+                np.minimum(near, poly.distance(chunk), out=near)
+        return out
+
     def any_contains(self, p: FloatArray, margin: float) -> BoolArray:
         """(n,) whether each point lies in some shape inflated by ``margin`` (chunked)."""
         if len(p) > _CHUNK:
@@ -230,6 +245,13 @@ class World:
         lo, hi = self._inner_bounds(clearance)
         out = np.any((p < lo) | (p > hi), axis=1)
         return np.asarray(out | self._obs.any_contains(p, clearance))
+
+    def obstacle_distance(self, points: Any) -> FloatArray:
+        """(n,) distance of each point to the nearest obstacle or bound (0 inside or outside):
+        the largest clearance at which ``in_collision`` is false."""
+        p = as_points(points, self.dim)
+        to_bounds = np.minimum(p - self.bounds[:, 0], self.bounds[:, 1] - p).min(axis=1)
+        return np.asarray(np.minimum(np.maximum(to_bounds, 0.0), self._obs.nearest(p)))
 
     def segments_free(self, a: Any, b: Any, clearance: float = 0.0) -> BoolArray:
         """(n,) whether each segment keeps ``clearance`` from every obstacle and from the bounds.

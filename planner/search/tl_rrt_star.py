@@ -36,7 +36,7 @@ from planner.geometry.labels import LabelOracle
 from planner.geometry.world import World
 from planner.ltl.automaton import Buchi
 from planner.search.growth import Growth, SuffixGrowth
-from planner.search.keep_out import KeepOut, forbidden_regions
+from planner.search.keep_out import keep_out
 from planner.search.planner_spec import REFINE_NODES_PER_ITERATION, PlannerSpec
 from planner.search.product_sampling import Realisable, Sampler, Stepper
 from planner.search.product_tree import ProductTree
@@ -86,10 +86,12 @@ class _Planner:
         lift: bool = True,
         seed: bool = True,
         give_up_cut_off: bool = False,
+        hold: float = 0.0,
     ) -> None:
         self.t0 = time.process_time()
         self.seed, self.give_up_cut_off = seed, give_up_cut_off
         self.world, self.nba, self.options, self.clearance = world, nba, options, clearance
+        self.hold = max(hold, clearance)
         self.start = np.asarray(start, dtype=float).reshape(-1)
         self.w = options.prefix_weight
         self.paths = Realisable(nba, world, clearance)
@@ -341,14 +343,11 @@ class _Planner:
         return make_lasso(out.prefix, out.suffix, out.prefix_states, out.suffix_states, self.w)
 
     def _keep_out(self, lasso: Lasso) -> Lasso:
-        """``lasso`` pushed to the clearance from the regions forbidden where it passes
-        (:mod:`planner.search.keep_out`)."""
-        forbidden = forbidden_regions(self.nba, self.world, self.oracle.names, self.clearance)
-        if not forbidden:
-            return lasso
+        """``lasso`` pushed to ``hold`` from the obstacles and to the clearance from the regions
+        forbidden where it passes (:mod:`planner.search.keep_out`)."""
         ops = Ops(self.world, self.oracle, self.stepper, self.clearance)
         run = LassoRun(lasso.prefix, lasso.suffix, lasso.prefix_states, lasso.suffix_states, self.w)
-        out = KeepOut(ops, self.world, forbidden, self.clearance).apply(run)
+        out = keep_out(run, ops, self.nba, self.oracle.names, self.clearance, self.hold)
         if out is run:
             return lasso
         return make_lasso(out.prefix, out.suffix, out.prefix_states, out.suffix_states, self.w)
@@ -382,18 +381,19 @@ def plan_lasso(
     options: PlannerSpec,
     rng: np.random.Generator | None = None,
     give_up_cut_off: bool = False,
+    hold: float = 0.0,
 ) -> Lasso:
     """TL-RRT* lasso for the (pruned) automaton ``nba`` from ``start`` in ``world``.
 
     ``rng`` defaults to ``numpy.random.default_rng(options.seed)``. Raises PlanningError when
     the automaton has no accepting run, or when ``max_iterations`` / ``time_limit`` run out
     without a lasso (the message names the regions never reached). The anytime phase runs for
-    ``refine_iterations`` iterations, so the plan is deterministic for a seed; with
-    ``refine_seconds`` set it runs for that many CPU seconds and depends on the machine.
+    ``refine_iterations`` iterations (deterministic for a seed), or ``refine_seconds`` of CPU.
     ``give_up_cut_off``: raise PlanningError as soon as the grid of corridors finds the next
     regions cut off from the prefix tree (for an attempt that another, with less clearance,
-    follows), instead of spending the budget.
+    follows). ``hold``: the clearance from obstacles kept where there is room (``keep_out``).
     """
     gen = rng if rng is not None else np.random.default_rng(options.seed)
-    planner = _Planner(world, nba, start, clearance, options, gen, give_up_cut_off=give_up_cut_off)
-    return planner.run()
+    return _Planner(
+        world, nba, start, clearance, options, gen, True, True, give_up_cut_off, hold
+    ).run()

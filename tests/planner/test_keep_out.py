@@ -67,3 +67,35 @@ def test_a_region_the_task_allows_is_passed_as_close_as_the_shortest_path_goes()
     world = corridor()
     plan = plan_mission(world, "<>g1", START, CLEARANCE, QUICK)
     assert least_distance(plan, "g2", world) < 0.2
+
+
+def door() -> World:
+    """Two 5 x 10 m rooms joined by a door 0.8 m wide at (5, 6.6): wide enough for a robot of
+    radius 0.3, not for it with half of a 0.3 m margin (0.9 m)."""
+    return World(
+        np.array([[0.0, 10.0], [0.0, 10.0]]),
+        [Box(np.array([4.9, 0.0]), np.array([5.1, 6.2])), Box(np.array([4.9, 7.0]), [5.1, 10.0])],
+        {"g1": Ball(np.array([8.5, 1.5]), 0.5)},
+    )
+
+
+def obstacle_gaps(plan: MissionPlan, world: World) -> np.ndarray:
+    """The distance to the obstacles of 50 points on each segment of the lasso."""
+    path = np.concatenate([plan.lasso.prefix, plan.lasso.suffix])
+    t = np.linspace(0.0, 1.0, 50)
+    dense = path[:-1, None, :] + t[None, :, None] * (path[1:] - path[:-1])[:, None, :]
+    return world.obstacle_distance(dense.reshape(-1, 2))
+
+
+def test_a_plan_that_could_not_keep_the_margin_keeps_what_room_there_is() -> None:
+    world = door()
+    start = np.array([1.5, 1.5])
+    margin = QUICK.model_copy(update={"margin": 0.3})
+    plan = plan_mission(world, "<>g1", start, 0.3, margin)
+    assert plan.clearance == pytest.approx(0.3)  # the door takes the radius alone
+    assert verify_plan(plan, world, 0.3) == []
+    gaps = obstacle_gaps(plan, world)
+    # Through the door's middle (0.4 m from each post), not around a post's corner at 0.3 m.
+    assert gaps.min() >= 0.39
+    tight = plan_mission(world, "<>g1", start, 0.3, QUICK)  # no margin asked: pulled tight
+    assert obstacle_gaps(tight, world).min() < 0.31

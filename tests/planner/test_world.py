@@ -57,6 +57,19 @@ def test_in_collision_matches_per_obstacle_checks() -> None:
         np.testing.assert_array_equal(w.in_collision(pts, clearance), expected)
 
 
+def test_obstacle_distance_is_the_clearance_at_which_a_point_starts_colliding() -> None:
+    w = mixed_world()
+    pts = np.random.default_rng(2).uniform(-5.5, 5.5, (3000, 2))
+    d = w.obstacle_distance(pts)
+    assert np.all(d >= 0.0)
+    np.testing.assert_array_equal(d == 0.0, w.in_collision(pts, 0.0))
+    free = d > 1e-6
+    assert not w.in_collision(pts[free], 0.0).any()
+    for point, distance in zip(pts[free], d[free], strict=True):
+        assert not w.in_collision(point[None, :], distance - 1e-6)[0]
+        assert w.in_collision(point[None, :], distance + 1e-6)[0]
+
+
 def test_clearance_inflates_obstacles_and_shrinks_bounds() -> None:
     w = mixed_world()
     near_box = np.array([[2.15, 2.0]])  # 0.15 right of the first box
