@@ -132,9 +132,10 @@ def plan_mission(
     """Plan ``task`` (LTL text) in ``world`` for a robot of radius ``clearance`` at ``start``,
     keeping ``options.margin`` more where a plan exists with it, else the largest share of it
     in ``MARGIN_SHARES`` that fits, else the radius alone (None: no margin; a mission's
-    ``MissionSpec.planner_options`` gives its robot's). ``nba``: the automaton of ``task``
-    when the caller has translated it already (``translate_task``), so that it is translated
-    once, not once per clearance tried.
+    ``MissionSpec.planner_options`` gives its robot's); a plan with less than the whole margin
+    keeps all of it wherever the free space leaves room (``planner.search.keep_out``).
+    ``nba``: the automaton of ``task`` when the caller has translated it already
+    (``translate_task``), so that it is translated once, not once per clearance tried.
 
     Raises FormulaError for a bad formula and PlanningError when no plan exists or none was
     found within the budget (the message says which).

@@ -7,15 +7,15 @@ guide with any error enters the region and the task is lost (racecar mission 100
 ``bench/generality.py``: the guide passed 0.01 m from ``g2``; ``bench/LEARNING.md``).
 
 So, after polishing, the waypoints closer than the clearance to a region forbidden in their
-state are pushed away from it, each move kept only if the run stays valid (collision free, the
-same automaton states). This is best effort: where the region leaves no room (a door between
-two forbidden regions), the path keeps what distance it can.
+state are pushed away from it, each move kept only if it gains distance and the run stays valid
+(collision free, the same automaton states). This is best effort: where the region leaves no
+room (a door between two forbidden regions), the path keeps what distance it can.
 
 The same push keeps a plan off the obstacles when it had to be planned with less clearance than
 the robot's radius plus its margin (a door too narrow for the whole margin: ``plan_mission``
 falls back to half of it, then to the radius alone). Such a plan is valid at the radius, but
 TL-RRT* pulls it tight around every corner on its way, where the margin would fit: racecar
-mission 1002 of ``bench/generality.py`` (doors of 0.97 and 0.99 m) planned at the radius alone
+mission 1002 of ``bench/generality.py`` (doors of 0.76 and 0.82 m) planned at the radius alone
 passed its door posts at 0.3 m and the pursuit controller hit a post at every start. So its
 waypoints closer than ``radius + margin`` to an obstacle are pushed out too, before the
 regions' push, each move kept only if it gains distance and the run stays valid at the radius.

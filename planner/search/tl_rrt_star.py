@@ -395,5 +395,5 @@ def plan_lasso(
     """
     gen = rng if rng is not None else np.random.default_rng(options.seed)
     return _Planner(
-        world, nba, start, clearance, options, gen, True, True, give_up_cut_off, hold
+        world, nba, start, clearance, options, gen, give_up_cut_off=give_up_cut_off, hold=hold
     ).run()
