@@ -10,7 +10,6 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any
 
-import numpy as np
 import typer
 
 from planner.errors import LtlnavError, PlanningError
@@ -106,7 +105,10 @@ def plan(
             "error: internal check of the plan failed:\n  " + "\n  ".join(problems), err=True
         )
         raise typer.Exit(1)
-    _print_summary(result)
+    from service.plan_summary import summary_lines
+
+    for line in summary_lines(result, robot.radius, options.margin or 0.0):
+        typer.echo(line)
     if json_out is not None:
         _write_json(json_out, result.to_json(), "plan")
     if plot_out is not None:
@@ -121,26 +123,6 @@ def _write_json(path: Path, document: dict[str, Any], what: str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(document, indent=1))
     typer.echo(f"{what} written to {path}")
-
-
-def _print_summary(result: object) -> None:
-    from planner.plan import MissionPlan
-
-    assert isinstance(result, MissionPlan)
-    lasso = result.lasso
-    typer.echo(
-        f"automaton: {result.nba.num_states} states / {result.nba.num_transitions} transitions, "
-        f"pruned {result.pruned.num_states} / {result.pruned.num_transitions} "
-        f"({result.translation_seconds * 1000:.0f} ms)"
-    )
-    typer.echo(
-        f"lasso: prefix {lasso.prefix_cost:.2f} ({len(lasso.prefix)} waypoints), "
-        f"suffix {lasso.suffix_cost:.2f} ({len(lasso.suffix)} waypoints), "
-        f"cost {lasso.cost:.2f}, found in {result.seconds:.2f} s"
-    )
-    for sub in result.subtasks:
-        length = float(np.sum(np.linalg.norm(np.diff(sub.path, axis=0), axis=1)))
-        typer.echo(f"  sub-task {sub.index} [{sub.phase}] -> {sub.goal}: {length:.2f} long")
 
 
 @app.command("train")

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import copy
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -11,11 +13,12 @@ import yaml
 from typer.testing import CliRunner
 
 from service.cli import EXIT_BAD_INPUT, EXIT_INFEASIBLE, app
+from service.plan_summary import clearance_line
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 runner = CliRunner()
 
-GF3 = {
+GF3: dict[str, Any] = {
     "name": "tiny-gf2",
     "task": "[]!obstacle && []<>a && []<>b",
     "robot": {"model": "point", "start": [0.5, 0.5], "radius": 0.05},
@@ -78,6 +81,34 @@ def test_plan_writes_valid_json_and_picture(tmp_path: Path) -> None:
     assert plan["automaton"]["states"] >= 2 and plan["cost"] > 0
     assert out_png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "sub-task" in result.output
+
+
+def test_plan_says_whether_the_margin_fitted(tmp_path: Path) -> None:
+    wide = runner.invoke(app, ["plan", str(write(tmp_path, GF3))])
+    assert wide.exit_code == 0, wide.output
+    assert "clearance: 0.35 m (radius 0.05 + margin 0.30)" in wide.output
+    # A 0.6 m door: room for the radius and half the 0.3 m margin (0.5 m), not all of it.
+    door = copy.deepcopy(GF3)
+    door["task"] = "[]!obstacle && <>a"
+    door["robot"]["radius"] = 0.1
+    door["world"] = {
+        "bounds": [[0, 4], [0, 4]],
+        "obstacles": [
+            {"box": {"min": [1.9, 0.0], "max": [2.1, 1.7]}},
+            {"box": {"min": [1.9, 2.3], "max": [2.1, 4.0]}},
+        ],
+        "regions": {"a": {"ball": {"center": [3.4, 0.6], "radius": 0.3}}},
+    }
+    narrow = runner.invoke(app, ["plan", str(write(tmp_path, door))])
+    assert narrow.exit_code == 0, narrow.output
+    assert "clearance: 0.25 m at the narrowest (radius 0.10 + 0.15 of the 0.30 m margin" in (
+        narrow.output
+    )
+
+
+def test_the_clearance_line_without_a_margin() -> None:
+    line = clearance_line(0.2, 0.2, 0.0)
+    assert line == "clearance: 0.20 m (the robot's radius; no margin asked)"
 
 
 def test_plan_seed_override_is_deterministic(tmp_path: Path) -> None:
