@@ -23,7 +23,7 @@ def clearance_line(clearance: float, radius: float, margin: float) -> str:
         held = f"radius {radius:.2f} alone: the {margin:.2f} m margin"
     return (
         f"clearance: {clearance:.2f} m at the narrowest ({held} does not fit everywhere; "
-        "the path keeps up to the whole margin wherever there is room)"
+        "the path is pushed out toward the whole margin wherever there is room)"
     )
 
 
