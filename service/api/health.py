@@ -3,7 +3,8 @@ request path: ``HealthMonitor`` keeps the last probe and ``/healthz`` reads it.
 
 A probe opens a database connection and a broker connection; answering every health check
 with a fresh probe would let anyone who can reach ``/healthz`` (it needs no key) open
-connections at will. The monitor's thread probes every ``Settings.health_probe_seconds``;
+connections at will. The monitor's thread probes every ``Settings.health_probe_seconds``
+(every ``RECHECK_SECONDS`` while a dependency is unusable);
 without the thread (an app used without its lifespan) a stale result is refreshed by one
 request while the others wait for it, never by several at once."""
 
@@ -29,6 +30,10 @@ BROKER_TIMEOUT = 2.0
 FIRST_PROBE_WAIT = 10.0
 """How long a health check waits for the first probe after start-up before answering
 ``unknown``."""
+
+RECHECK_SECONDS = 1.0
+"""How soon the thread probes again after a probe that found a dependency unusable (at most
+``interval``): a start-up race or a blip is cleared in a second, not a whole interval."""
 
 PROBE_THREAD = "ltlnav-health"
 """The name of the thread that refreshes the probe (``HealthMonitor.start``)."""
@@ -89,7 +94,8 @@ def probe(settings: Settings, database: Database) -> Probe:
 
 class HealthMonitor:
     """The last probe of one app's database and broker, refreshed every ``interval`` seconds
-    by a thread between ``start()`` and ``stop()``, else on demand once it is that old."""
+    by a thread between ``start()`` and ``stop()`` (sooner while a dependency is unusable),
+    else on demand once it is that old."""
 
     def __init__(self, settings: Settings, database: Database) -> None:
         self.settings = settings
@@ -149,12 +155,15 @@ class HealthMonitor:
     def _run(self) -> None:
         while True:
             try:
-                self.refresh()
+                result = self.refresh()
             except Exception as error:  # a probe must never end the monitor
                 log.exception("the health probe crashed")
                 problem = f"the health probe crashed: {redact_urls(str(error))}"
-                self._store(Probe("unknown", "unknown", {"probe": problem}, time.monotonic()))
-            if self._stop.wait(self.interval):
+                result = self._store(
+                    Probe("unknown", "unknown", {"probe": problem}, time.monotonic())
+                )
+            wait = self.interval if result.ok else min(self.interval, RECHECK_SECONDS)
+            if self._stop.wait(wait):
                 return
 
     def stop(self) -> None:

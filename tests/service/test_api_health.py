@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
+from service.api import health
 from service.api.app import create_app
 from service.db import Database, upgrade
 from service.jobs import celery_app
@@ -88,6 +89,23 @@ def test_the_thread_probes_every_interval(
         assert down.status_code == 503
         assert down.json()["broker"] == "down"
     assert probe.calls >= 2
+
+
+def test_a_failed_probe_is_checked_again_within_seconds_not_a_whole_interval(
+    tmp_path: Path, sqlite_db: Database, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    probe = CountingProbe(answer=False)  # e.g. a cold broker that misses the first timeout
+    monkeypatch.setattr(celery_app, "broker_ok", probe)
+    with _app(tmp_path, sqlite_db, probe_seconds=60.0) as http:
+        assert http.get("/healthz").status_code == 503
+        probe.answer = True
+        deadline = time.monotonic() + 5 * health.RECHECK_SECONDS
+        while http.get("/healthz").status_code != 200:
+            assert time.monotonic() < deadline, "still 503 after the re-check"
+            time.sleep(0.05)
+        calls = probe.calls
+        time.sleep(2 * health.RECHECK_SECONDS)
+        assert probe.calls == calls  # healthy again: back to one probe per interval
 
 
 def test_no_password_in_the_health_report(

@@ -170,6 +170,26 @@ def _wait_healthy(base: str, process: subprocess.Popen[str], seconds: float = 60
     raise AssertionError("ltlnav serve did not answer")
 
 
+def _every_process_healthy(
+    base: str, process: subprocess.Popen[str], in_a_row: int = 20, seconds: float = 60
+) -> None:
+    """Wait until ``in_a_row`` health checks, each on a new connection (spread over the API
+    processes by the kernel), answer 200 one after the other: every process has finished
+    its start-up probe and found the database and the broker."""
+    deadline = time.monotonic() + seconds
+    healthy = 0
+    while healthy < in_a_row:
+        assert process.poll() is None, process.communicate()[0]
+        with httpx.Client() as client:
+            answer = client.get(f"{base}/healthz", timeout=5)
+        if answer.status_code == 200:
+            healthy += 1
+            continue
+        assert time.monotonic() < deadline, f"not every process is healthy: {answer.text}"
+        healthy = 0
+        time.sleep(0.2)
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(120)
 @pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
@@ -238,9 +258,7 @@ def test_serve_runs_the_api_in_several_processes_and_stops_them_all(tmp_path: Pa
     base = f"http://127.0.0.1:{port}"
     try:
         _wait_healthy(base, process)
-        for _ in range(20):  # new connections, spread over the processes by the kernel
-            with httpx.Client() as client:
-                assert client.get(f"{base}/healthz", timeout=5).status_code == 200
+        _every_process_healthy(base, process)
         children = descendants(process.pid)
         assert len(children) >= 2
         output = _stopped(process, signal.SIGTERM)
