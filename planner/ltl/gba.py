@@ -61,6 +61,10 @@ class Degeneralizer:
         outgrow this many states (None: no budget)."""
         self.r = len(vwaa.finals)
         self.acc_index = {f: i + 1 for i, f in enumerate(vwaa.finals)}
+        self.one_level_per_set = True
+        """After ``build``: whether every GBA state ``e`` was reached at one level only, so
+        the degeneralization added no copies (another order of the acceptance sets reaches
+        at least the same sets ``e``)."""
 
     def successors(self, e: frozenset[int], level: int) -> dict[BaState, list[Cube]]:
         """The outgoing transitions of Büchi state ``(e, level)``, by target state."""
@@ -166,6 +170,7 @@ class Degeneralizer:
                 out[state_id(target)] = cubes
             edges[ids[s]] = out
         accepting = {i for s, i in ids.items() if s[1] == self.r}
+        self.one_level_per_set = len({e for e, _ in ids}) == len(ids)
         if self.r == 0 and len(initial_sets) != 1:
             accepting.add(initial)
         return RawBuchi(initial, accepting, edges, names)
