@@ -80,6 +80,8 @@ Cube.TRUE = Cube()
 def _absorb(cubes: Iterable[Cube]) -> frozenset[Cube]:
     """Drop cubes implied by another cube and merge pairs ``(c & x) | (c & !x)`` into ``c``."""
     work = set(cubes)
+    if len(work) < 2:
+        return frozenset(work)
     changed = True
     while changed:
         changed = False
