@@ -31,59 +31,21 @@ through :class:`~planner.search.point_index.PointIndex` (KD-tree plus a short sc
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 
 import numpy as np
 
 from planner.geometry.labels import LabelOracle
 from planner.geometry.world import World
 from planner.search.point_index import PointIndex
+from planner.search.product_edges import Successors, TransitionTable, edges_ok
 from planner.search.roadmap import Roadmap, product_shortest_paths
 
-Successors = Callable[[int, int], tuple[int, ...]]
+_REWIRE_CELLS = 1 << 22
+"""Most (new node, neighbour, state) cells the rewiring tests in one batch."""
 
 _EPS = 1e-12
 _STEPS = np.array([1.0, 0.5, 0.25])
 """Fractions of the steering step tried, longest first."""
-
-
-def edges_ok(
-    world: World, oracle: LabelOracle, clearance: float, a: np.ndarray, b: np.ndarray
-) -> np.ndarray:
-    """(n,) validity of product edges' geometry a[i]-b[i]: collision free with the clearance
-    and at most one change of the task label along the segment."""
-    ok = np.asarray(world.segments_free(a, b, clearance), dtype=bool).copy()
-    idx = np.flatnonzero(ok)
-    if idx.size:
-        ok[idx] = oracle.changes(a[idx], b[idx]) <= 1
-    return ok
-
-
-class TransitionTable:
-    """The automaton's successor relation as boolean matrices, one per label met so far.
-
-    Labels (bitmasks) get small ids in order of appearance; ``reach[lid][q, q2]`` tells whether
-    ``q2`` is a successor of ``q`` under label ``lid``. Indexing ``reach`` by the label ids of k
-    points gives the (k, Q, Q) relation of a whole neighbourhood in one operation.
-    """
-
-    def __init__(self, successors: Successors, num_states: int) -> None:
-        self.successors = successors
-        self.num_states = num_states
-        self.reach = np.zeros((8, num_states, num_states), dtype=bool)
-        self._ids: dict[int, int] = {}
-
-    def label_id(self, mask: int) -> int:
-        """The id of label ``mask``, its matrix computed on first sight."""
-        lid = self._ids.get(mask)
-        if lid is None:
-            lid = len(self._ids)
-            if lid == len(self.reach):
-                self.reach = np.concatenate([self.reach, np.zeros_like(self.reach)])
-            for q in range(self.num_states):
-                self.reach[lid, q, list(self.successors(q, mask))] = True
-            self._ids[mask] = lid
-        return lid
 
 
 class ProductTree:
@@ -331,11 +293,37 @@ class ProductTree:
             return []
         pid_new = self.add_point(x_new, mask_new)
         self.roadmap.record(pid_new, near, d)
-        new = [
-            self.add_node(pid_new, int(q2), int(nodes[row[src[q2]], src[q2]]), float(best[q2]))
-            for q2 in reached.tolist()
-        ]
+        parents = nodes[row[src[reached]], src[reached]]
+        new = self._add_at_new_point(pid_new, reached, parents, best[reached])
         return new + self._rewire(new, near, d)
+
+    def _add_at_new_point(
+        self, pid: int, qs: np.ndarray, parents: np.ndarray, costs: np.ndarray
+    ) -> list[int]:
+        """``add_node(pid, qs[k], parents[k], costs[k])`` for every k, in this order, at a
+        point that has no node yet: the same tree, in bulk."""
+        first, count = len(self.node_q), len(qs)
+        while len(self.cost) < first + count:
+            self.cost = np.concatenate([self.cost, np.full_like(self.cost, math.inf)])
+        self.cost[first : first + count] = costs
+        nids = list(range(first, first + count))
+        q_list, parent_list = qs.tolist(), parents.tolist()
+        self.node_pt.extend([pid] * count)
+        self.node_q.extend(q_list)
+        self.parent.extend(parent_list)
+        self.children.extend([] for _ in range(count))
+        for nid, parent in zip(nids, parent_list, strict=True):
+            self.children[parent].append(nid)
+        self.reached.add(pid, self.pos[pid])
+        self.entered |= self.mask[pid]
+        self.node_at[pid, qs] = nids
+        x = self.pos[pid]
+        for q in q_list:
+            layer = self.layers.get(q)
+            if layer is None:
+                layer = self.layers[q] = PointIndex(self.dim)
+            layer.add(pid, x)
+        return nids
 
     def _rewire(self, new: list[int], near: np.ndarray, d: np.ndarray) -> list[int]:
         """Reparent neighbour nodes through the new nodes where cheaper, and lift the new
@@ -348,16 +336,22 @@ class ProductTree:
         # their stale (higher) costs only let through candidates that the exact test drops.
         nodes = self.node_at[near]
         current = np.where(nodes >= 0, self.cost[nodes], math.inf if self.lift else -math.inf)
-        for nid_new in new:
-            q2 = self.node_q[nid_new]
-            through = self.cost[nid_new] + d
-            # (k, Q) successors of q2 only: (k, Q, Q) would be large for an automaton of a
-            # finite any-order task (2^goals states).
-            reach = self.table.reach[labels, q2, :]
-            rows, cols = np.nonzero(reach & (through[:, None] < current - _EPS))
-            for i, q in zip(rows.tolist(), cols.tolist(), strict=True):
+        new_q = np.asarray([self.node_q[n] for n in new], dtype=np.intp)
+        d_l = d.tolist()
+        chunk = max(1, _REWIRE_CELLS // max(1, near.size * self.num_states))
+        for start in range(0, len(new), chunk):
+            # (new node, neighbour, state) where the new node's state steps to that state
+            # under the neighbour's label, in the order of a loop over the new nodes.
+            reach = self.table.reach[labels[None, :], new_q[start : start + chunk, None], :]
+            at = -1
+            for j, i, q in zip(*(a.tolist() for a in np.nonzero(reach)), strict=True):
+                if j != at:  # a new node's cost as it is now: rewiring may have lowered it
+                    at, nid_new = j, new[start + j]
+                    base = float(self.cost[nid_new])
+                c = base + d_l[i]
+                if not c < current[i, q] - _EPS:
+                    continue
                 m = int(nodes[i, q])
-                c = float(through[i])
                 if m < 0:
                     nodes[i, q] = m = self.add_node(near_l[i], q, nid_new, c)
                     lifted.append(m)

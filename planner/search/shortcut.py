@@ -28,7 +28,7 @@ import numpy as np
 
 from planner.geometry.labels import LabelOracle
 from planner.geometry.world import World
-from planner.search.product_tree import Successors, edges_ok
+from planner.search.product_edges import Successors, edges_ok
 
 
 @dataclass(frozen=True)

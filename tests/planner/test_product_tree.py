@@ -91,3 +91,42 @@ def test_the_anytime_budget_ends_at_its_product_nodes_on_an_any_order_task() -> 
     assert planner.prefix.iterations - iterations < 200
     assert grown >= 200 * REFINE_NODES_PER_ITERATION
     assert_consistent(planner.prefix.tree)
+
+
+def _any_order_tree(goals: int = 5) -> ProductTree:
+    """The prefix tree of an any-order visit of ``goals`` goals: many states per point."""
+    world = World(
+        np.array([[0.0, 10.0], [0.0, 10.0]]),
+        [],
+        {f"g{i}": Ball(np.array([1.0 + 1.6 * i, 9.0 - (i % 2) * 7.0]), 0.4) for i in range(goals)},
+    )
+    nba = translate(" && ".join(f"<>g{i}" for i in range(goals)))
+    spec = PlannerSpec(seed=3)
+    planner = _Planner(world, nba, np.array([5.0, 5.0]), 0.1, spec, np.random.default_rng(3))
+    planner.first_lasso()
+    planner.refine(0.0, 60)
+    return planner.prefix.tree
+
+
+def test_the_nodes_of_a_new_point_made_in_bulk_give_the_tree_made_one_by_one(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    bulk = _any_order_tree()
+    assert_consistent(bulk)
+
+    def one_by_one(
+        tree: ProductTree, pid: int, qs: np.ndarray, parents: np.ndarray, costs: np.ndarray
+    ) -> list[int]:
+        return [
+            tree.add_node(pid, q, parent, cost)
+            for q, parent, cost in zip(qs.tolist(), parents.tolist(), costs.tolist(), strict=True)
+        ]
+
+    monkeypatch.setattr(ProductTree, "_add_at_new_point", one_by_one)
+    single = _any_order_tree()
+    assert bulk.num_nodes > 4 * bulk.npts  # several states per point
+    assert bulk.node_pt == single.node_pt and bulk.node_q == single.node_q
+    assert bulk.parent == single.parent and bulk.children == single.children
+    assert bulk.cost[: bulk.num_nodes].tolist() == single.cost[: single.num_nodes].tolist()
+    for q, layer in bulk.layers.items():
+        assert _ids(layer) == _ids(single.layers[q])
