@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from planner.collector import collection_paused
 from planner.decompose import SubTask, decompose
 from planner.errors import PlanningError, unsatisfiable
 from planner.geometry.world import World
@@ -96,6 +97,7 @@ class MissionPlan:
         }
 
 
+@collection_paused()
 def translate_task(
     task: str, world: World, clearance: float, max_states: int | None = None
 ) -> tuple[Buchi, Buchi]:
@@ -121,6 +123,7 @@ def prune_for_world(nba: Buchi, world: World, clearance: float) -> Buchi:
     return pruned
 
 
+@collection_paused()
 def plan_mission(
     world: World,
     task: str,

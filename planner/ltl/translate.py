@@ -14,6 +14,7 @@ throughout; only the simulation, up to 8 atoms, reasons on letter sets.
 
 from __future__ import annotations
 
+from planner.collector import collection_paused
 from planner.errors import AutomatonTooLargeError
 from planner.ltl.automaton import Buchi, Edge
 from planner.ltl.formula import Formula, atoms, parse, to_nnf
@@ -24,6 +25,7 @@ from planner.ltl.rewrite import simplify
 from planner.ltl.vwaa import build_vwaa, reordered_finals
 
 
+@collection_paused()
 def translate(formula: Formula | str, max_states: int | None = None) -> Buchi:
     """The Büchi automaton accepting exactly the infinite words that satisfy ``formula``.
 
