@@ -320,7 +320,7 @@ def main() -> None:
         ),
     ]
     for title, missions, n in groups:
-        if missions:
+        if missions and n > 0:
             print_table(title, header, mission_rows(missions, n, args.baseline, record))
     if args.record is not None:
         args.record.write_text("".join(json.dumps(r) + "\n" for r in record))
