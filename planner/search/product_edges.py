@@ -33,12 +33,14 @@ class TransitionTable:
     Labels (bitmasks) get small ids in order of appearance; ``reach[lid][q, q2]`` tells whether
     ``q2`` is a successor of ``q`` under label ``lid``. Indexing ``reach`` by the label ids of k
     points gives the (k, Q, Q) relation of a whole neighbourhood in one operation.
+    ``after[lid][q]`` lists the same successors, ascending, for loops over a few states.
     """
 
     def __init__(self, successors: Successors, num_states: int) -> None:
         self.successors = successors
         self.num_states = num_states
         self.reach = np.zeros((8, num_states, num_states), dtype=bool)
+        self.after: list[list[list[int]]] = []
         self._ids: dict[int, int] = {}
 
     def label_id(self, mask: int) -> int:
@@ -48,7 +50,9 @@ class TransitionTable:
             lid = len(self._ids)
             if lid == len(self.reach):
                 self.reach = np.concatenate([self.reach, np.zeros_like(self.reach)])
-            for q in range(self.num_states):
-                self.reach[lid, q, list(self.successors(q, mask))] = True
+            after = [sorted(self.successors(q, mask)) for q in range(self.num_states)]
+            for q, targets in enumerate(after):
+                self.reach[lid, q, targets] = True
+            self.after.append(after)
             self._ids[mask] = lid
         return lid

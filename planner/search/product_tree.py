@@ -40,9 +40,6 @@ from planner.search.point_index import PointIndex
 from planner.search.product_edges import Successors, TransitionTable, edges_ok
 from planner.search.roadmap import Roadmap, product_shortest_paths
 
-_REWIRE_CELLS = 1 << 22
-"""Most (new node, neighbour, state) cells the rewiring tests in one batch."""
-
 _EPS = 1e-12
 _STEPS = np.array([1.0, 0.5, 0.25])
 """Fractions of the steering step tried, longest first."""
@@ -173,7 +170,8 @@ class ProductTree:
         while len(self.cost) < first + count:
             self.cost = np.concatenate([self.cost, np.full_like(self.cost, math.inf)])
         cost = self.cost
-        lengths = [float(np.linalg.norm(d)) for d in self.pos[pids] - self.pos[parent_pids]]
+        # sqrt(d . d) as np.linalg.norm computes it, bit for bit, without its overhead per row
+        lengths = [math.sqrt(d.dot(d)) for d in self.pos[pids] - self.pos[parent_pids]]
         parent_list = parents.tolist()
         for nid, parent, length in zip(nids.tolist(), parent_list, lengths, strict=True):
             cost[nid] = float(cost[parent]) + length
@@ -336,29 +334,25 @@ class ProductTree:
         # their stale (higher) costs only let through candidates that the exact test drops.
         nodes = self.node_at[near]
         current = np.where(nodes >= 0, self.cost[nodes], math.inf if self.lift else -math.inf)
-        new_q = np.asarray([self.node_q[n] for n in new], dtype=np.intp)
+        after = [self.table.after[lid] for lid in labels.tolist()]
         d_l = d.tolist()
-        chunk = max(1, _REWIRE_CELLS // max(1, near.size * self.num_states))
-        for start in range(0, len(new), chunk):
-            # (new node, neighbour, state) where the new node's state steps to that state
-            # under the neighbour's label, in the order of a loop over the new nodes.
-            reach = self.table.reach[labels[None, :], new_q[start : start + chunk, None], :]
-            at = -1
-            for j, i, q in zip(*(a.tolist() for a in np.nonzero(reach)), strict=True):
-                if j != at:  # a new node's cost as it is now: rewiring may have lowered it
-                    at, nid_new = j, new[start + j]
-                    base = float(self.cost[nid_new])
-                c = base + d_l[i]
-                if not c < current[i, q] - _EPS:
-                    continue
-                m = int(nodes[i, q])
-                if m < 0:
-                    nodes[i, q] = m = self.add_node(near_l[i], q, nid_new, c)
-                    lifted.append(m)
-                    current[i, q] = c
-                elif c < self.cost[m] - _EPS:
-                    self.reparent(m, nid_new, c)
-                    current[i, q] = c
+        # In the order of a loop over the new nodes, then the neighbours, then the states.
+        for nid_new in new:
+            q2 = self.node_q[nid_new]
+            base = float(self.cost[nid_new])  # as it is now: rewiring may have lowered it
+            for i, successors in enumerate(after):
+                for q in successors[q2]:
+                    c = base + d_l[i]
+                    if not c < current[i, q] - _EPS:
+                        continue
+                    m = int(nodes[i, q])
+                    if m < 0:
+                        nodes[i, q] = m = self.add_node(near_l[i], q, nid_new, c)
+                        lifted.append(m)
+                        current[i, q] = c
+                    elif c < self.cost[m] - _EPS:
+                        self.reparent(m, nid_new, c)
+                        current[i, q] = c
         return lifted
 
     def reparent(self, nid: int, parent: int, cost: float) -> None:
