@@ -268,24 +268,28 @@ class ProductTree:
         if near.size == 0:
             return []
         mask_new = self.oracle.masks(x_new[None, :])[0]
-        lid_new = self.table.label_id(mask_new)  # may grow table.reach: look it up first
-        reach_new = self.table.reach[lid_new]
+        after = self.table.after[self.table.label_id(mask_new)]
         states = np.arange(self.num_states)
         nodes = self.node_at[near]
         through = np.where(nodes >= 0, self.cost[nodes] + d[:, None], math.inf)
         # Cheapest neighbour node in each automaton state, then for each successor state the
-        # cheapest of those that steps to it under L(x_new).
-        # Only the states present among the neighbours are rows: (Q, Q) would be large for
-        # the automaton of a finite any-order task (2^goals states).
+        # cheapest of those that steps to it under L(x_new), the first on a tie. Through the
+        # successor lists of the states present: a (present, Q) array would be large for the
+        # automaton of a finite any-order task (2^goals states).
         row = through.argmin(axis=0)
         via = through[row, states]
         present = np.flatnonzero(np.isfinite(via))
         if present.size == 0:
             return []
-        options = np.where(reach_new[present], via[present, None], math.inf)
-        src = present[options.argmin(axis=0)]
-        best = via[src]
-        best[~reach_new[src, states]] = math.inf
+        via_l = via.tolist()
+        best_l = [math.inf] * self.num_states
+        src_l = [0] * self.num_states
+        for p in present.tolist():
+            v = via_l[p]
+            for q in after[p]:
+                if v < best_l[q]:
+                    best_l[q], src_l[q] = v, p
+        best, src = np.asarray(best_l), np.asarray(src_l)
         reached = np.flatnonzero(np.isfinite(best))
         if reached.size == 0:
             return []
