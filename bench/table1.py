@@ -260,17 +260,28 @@ def method_curve(
     task: Task, method: str, protocol: str, seeds: list[int], out: Path, records: Path
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """The steps of the periodic evaluations and, per seed and sub-task, the success rate at
-    each (a run that stopped early holds its last rate); None: no evaluation yet."""
+    each (a run that stopped early holds its last rate, and a sub-task met at step 0, which
+    trained not at all, holds its rate throughout; with no training at all the steps are 0 and
+    the row's budget); None: no run yet."""
     series: list[np.ndarray] = []
     steps: np.ndarray | None = None
+    held: list[float] = []
     for seed in seeds:
         run = run_figures(task, method, protocol, seed, out, records)
-        for subtask in run.get("curve", {}).values():
+        curve = run.get("curve", {})
+        for subtask in curve.values():
             if steps is None or len(subtask["timesteps"]) > len(steps):
                 steps = np.asarray(subtask["timesteps"])
             series.append(np.asarray(subtask["success"]))
-    if not series or steps is None:
-        return None
+        spent = run.get("steps", [])
+        for k, rate in enumerate(run.get("subtasks", [])):
+            if spent[k] == 0 and f"subtask_{k}" not in curve:
+                held.append(rate)
+    if steps is None:
+        if not held:
+            return None
+        steps = np.array([0, task.budget])
+    series += [np.array([rate]) for rate in held]
     grid = np.full((len(series), len(steps)), np.nan)
     for i, s in enumerate(series):
         grid[i, : len(s)] = s
@@ -288,7 +299,8 @@ def curves(
     path: Path,
 ) -> None:
     """Success rate against env steps, per method: median over seeds and sub-tasks of the
-    periodic evaluations, band from min to max."""
+    periodic evaluations, band from min to max; the control (the feed-forward or zero action
+    alone, no training) as a dashed line at its median sub-task success."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -302,12 +314,16 @@ def curves(
         steps, grid = curve
         axes.plot(steps, np.nanmedian(grid, axis=0), label=method)
         axes.fill_between(steps, np.nanmin(grid, axis=0), np.nanmax(grid, axis=0), alpha=0.2)
+    zero = _zero_record(task, protocol, records)
+    if axes.lines and zero.is_file():
+        rate = statistics.median(json.loads(zero.read_text())["subtasks"])
+        axes.axhline(rate, color="black", linestyle="--", label="zero (control)")
     axes.set(xlabel="env steps", ylabel="success rate", title=f"{task.label} ({protocol})")
     axes.set_ylim(-0.02, 1.02)
     if axes.lines:
         axes.legend()
     else:
-        axes.text(0.5, 0.5, "no periodic evaluation yet", ha="center", transform=axes.transAxes)
+        axes.text(0.5, 0.5, "no run yet", ha="center", transform=axes.transAxes)
     figure.savefig(path, dpi=100, bbox_inches="tight")
     plt.close(figure)
 
