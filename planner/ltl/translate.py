@@ -6,7 +6,7 @@ through an implicit generalized Büchi automaton (:mod:`planner.ltl.gba`) -> sim
 reduction (:mod:`planner.ltl.reduce`), for two orders of the acceptance sets when the
 formula has several ``F``/``U`` obligations (the smaller automaton wins). The second order
 is tried only when the first made copies of a GBA state at several levels: of the 61
-formulas of ``planner.ltl.families`` and of robot tasks (3-8 goals) with two orders, the
+formulas of ``planner.ltl.families`` and of robot tasks (2-8 goals) with two orders, the
 second won on 12, never on one without such copies (``<>g1 && ... && <>g10``, 1024
 states, is one: half its translation time was the second order). Guards stay DNF cubes
 throughout; only the simulation, up to 8 atoms, reasons on letter sets.
