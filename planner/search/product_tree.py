@@ -158,63 +158,65 @@ class ProductTree:
         """``add_node`` for the nodes ``(pids[k], qs[k])`` in this order, each under the node
         ``(parent_pids[k], parent_qs[k])`` (which exists, or comes earlier) at its cost plus
         the segment between their points: the same tree, in bulk."""
-        first, count = len(self.node_q), len(pids)
-        if count == 0:
+        if len(pids) == 0:
             return []
-        nids = np.arange(first, first + count)
+        first = len(self.node_q)
         at_points, first_at = np.unique(pids, return_index=True)
         unseen = ~(self.node_at[at_points] >= 0).any(axis=1)
-        self.node_at[pids, qs] = nids
+        self.node_at[pids, qs] = np.arange(first, first + len(pids))
         parents = self.node_at[parent_pids, parent_qs]
         assert (parents >= 0).all(), "Dijkstra's predecessor is cheaper, hence exists already"
-        while len(self.cost) < first + count:
-            self.cost = np.concatenate([self.cost, np.full_like(self.cost, math.inf)])
+        parent_list = parents.tolist()
+        nids = self._append(pids.tolist(), qs.tolist(), parent_list)
         cost = self.cost
         # sqrt(d . d) as np.linalg.norm computes it, bit for bit, without its overhead per row
         lengths = [math.sqrt(d.dot(d)) for d in self.pos[pids] - self.pos[parent_pids]]
-        parent_list = parents.tolist()
-        for nid, parent, length in zip(nids.tolist(), parent_list, lengths, strict=True):
+        for nid, parent, length in zip(nids, parent_list, lengths, strict=True):
             cost[nid] = float(cost[parent]) + length
-        self.node_pt.extend(pids.tolist())
-        self.node_q.extend(qs.tolist())
-        self.parent.extend(parent_list)
-        self.children.extend([] for _ in range(count))
-        for nid, parent in zip(nids.tolist(), parent_list, strict=True):
-            self.children[parent].append(nid)
         reached = pids[np.sort(first_at[unseen])]  # points new to the tree, in order
         self.reached.add_many(reached, self.pos[reached])
         for pid in reached.tolist():
             self.entered |= self.mask[pid]
         for q in np.unique(qs).tolist():
-            layer = self.layers.get(q)
-            if layer is None:
-                layer = self.layers[q] = PointIndex(self.dim)
             at = pids[qs == q]
-            layer.add_many(at, self.pos[at])
-        return nids.tolist()
+            self._layer(q).add_many(at, self.pos[at])
+        return nids
+
+    def _append(self, pids: list[int], qs: list[int], parents: list[int]) -> list[int]:
+        """The ids, lists and child links of new nodes ``(pids[k], qs[k])`` under
+        ``parents[k]`` (-1: none), in this order, with room for them in the cost array; their
+        costs, table entries and indexes are the caller's."""
+        first = len(self.node_q)
+        nids = list(range(first, first + len(pids)))
+        while len(self.cost) < first + len(pids):
+            self.cost = np.concatenate([self.cost, np.full_like(self.cost, math.inf)])
+        self.node_pt.extend(pids)
+        self.node_q.extend(qs)
+        self.parent.extend(parents)
+        self.children.extend([] for _ in nids)
+        for nid, parent in zip(nids, parents, strict=True):
+            if parent >= 0:
+                self.children[parent].append(nid)
+        return nids
+
+    def _layer(self, q: int) -> PointIndex:
+        """The index of the points that carry a node in state ``q``."""
+        layer = self.layers.get(q)
+        if layer is None:
+            layer = self.layers[q] = PointIndex(self.dim)
+        return layer
 
     def add_node(self, pid: int, q: int, parent: int, cost: float) -> int:
         """Create product node ``(point pid, q)`` under ``parent`` (-1 for a root)."""
-        nid = len(self.node_q)
-        if nid == len(self.cost):
-            self.cost = np.concatenate([self.cost, np.full_like(self.cost, math.inf)])
-        self.node_pt.append(pid)
-        self.node_q.append(q)
-        self.parent.append(parent)
+        (nid,) = self._append([pid], [q], [parent])
         self.cost[nid] = cost
-        self.children.append([])
-        if parent >= 0:
-            self.children[parent].append(nid)
         if not (self.node_at[pid] >= 0).any():
             self.reached.add(pid, self.pos[pid])
             self.entered |= self.mask[pid]
         self.node_at[pid, q] = nid
         if parent < 0:
             self.roots.append(nid)
-        layer = self.layers.get(q)
-        if layer is None:
-            layer = self.layers[q] = PointIndex(self.dim)
-        layer.add(pid, self.pos[pid])
+        self._layer(q).add(pid, self.pos[pid])
         return nid
 
     def node(self, pid: int, q: int) -> int:
@@ -304,27 +306,15 @@ class ProductTree:
     ) -> list[int]:
         """``add_node(pid, qs[k], parents[k], costs[k])`` for every k, in this order, at a
         point that has no node yet: the same tree, in bulk."""
-        first, count = len(self.node_q), len(qs)
-        while len(self.cost) < first + count:
-            self.cost = np.concatenate([self.cost, np.full_like(self.cost, math.inf)])
-        self.cost[first : first + count] = costs
-        nids = list(range(first, first + count))
-        q_list, parent_list = qs.tolist(), parents.tolist()
-        self.node_pt.extend([pid] * count)
-        self.node_q.extend(q_list)
-        self.parent.extend(parent_list)
-        self.children.extend([] for _ in range(count))
-        for nid, parent in zip(nids, parent_list, strict=True):
-            self.children[parent].append(nid)
+        q_list = qs.tolist()
+        nids = self._append([pid] * len(q_list), q_list, parents.tolist())
+        self.cost[nids[0] : nids[-1] + 1] = costs
         self.reached.add(pid, self.pos[pid])
         self.entered |= self.mask[pid]
         self.node_at[pid, qs] = nids
         x = self.pos[pid]
         for q in q_list:
-            layer = self.layers.get(q)
-            if layer is None:
-                layer = self.layers[q] = PointIndex(self.dim)
-            layer.add(pid, x)
+            self._layer(q).add(pid, x)
         return nids
 
     def _rewire(self, new: list[int], near: np.ndarray, d: np.ndarray) -> list[int]:
