@@ -245,7 +245,8 @@ class Settings(BaseSettings):
 
     health_probe_seconds: float = Field(default=5.0, gt=0)
     """How often the API probes the database and the broker for ``/healthz``, off the request
-    path: a health check reads the last result and opens no connection."""
+    path (every second while one of them is unusable): a health check reads the last result
+    and opens no connection."""
 
     def admission_limits(self) -> AdmissionLimits:
         """The admission limits (``max_*`` fields) as the workers' plain dataclass."""
