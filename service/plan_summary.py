@@ -3,9 +3,8 @@ each sub-task."""
 
 from __future__ import annotations
 
-import numpy as np
-
 from planner.plan import MissionPlan
+from planner.search.tl_rrt_star import path_length
 
 _SLACK = 1e-9
 
@@ -40,6 +39,7 @@ def summary_lines(plan: MissionPlan, radius: float, margin: float) -> list[str]:
         clearance_line(plan.clearance, radius, margin),
     ]
     for sub in plan.subtasks:
-        length = float(np.sum(np.linalg.norm(np.diff(sub.path, axis=0), axis=1)))
-        lines.append(f"  sub-task {sub.index} [{sub.phase}] -> {sub.goal}: {length:.2f} long")
+        lines.append(
+            f"  sub-task {sub.index} [{sub.phase}] -> {sub.goal}: {path_length(sub.path):.2f} long"
+        )
     return lines
