@@ -14,16 +14,22 @@ and finally states that are unreachable or cannot reach an accepting cycle go.
 
 from __future__ import annotations
 
+import numpy as np
+
 from planner.ltl.automaton import nodes_on_cycles
 from planner.ltl.gba import RawBuchi, add_cube
 from planner.ltl.guard import Cube, covers
-from planner.ltl.letters import LetterSets
+from planner.ltl.letter_simulation import letter_simulation
 
 LETTER_ATOMS = 8
 """Up to this many atoms the simulation reasons letter by letter (2^8 letters)."""
 
+LETTER_SIMULATION_BUDGET = 4_000_000
+"""Largest ``states^2 x letter words`` for which the letter simulation is computed."""
+
 SIMULATION_BUDGET = 150_000
-"""Largest ``states x cubes`` for which the quadratic simulation is computed (~0.5 s)."""
+"""Above :data:`LETTER_ATOMS` atoms: the largest ``states x cubes`` for which the
+quadratic simulation is computed (~0.5 s)."""
 
 
 def reduce_buchi(ba: RawBuchi) -> RawBuchi:
@@ -35,12 +41,14 @@ def reduce_buchi(ba: RawBuchi) -> RawBuchi:
     ba = trim(merge_identical(trim(ba)))
     while True:
         size = (ba.num_states, _num_cubes(ba))
-        if size[0] * size[1] > SIMULATION_BUDGET:
+        if not _within_budget(ba):
             return ba
         sim = simulation(ba)
-        ba = trim(quotient(ba, sim))
+        merged = quotient(ba, sim)
+        if merged is not ba:
+            ba = trim(merged)
+            sim = simulation(ba)
         # Pruning keeps every state's language, so its simulation still orders them.
-        sim = simulation(ba)
         ba = trim(restart_initial(prune_little_brothers(ba, sim), sim))
         if (ba.num_states, _num_cubes(ba)) == size:
             return ba
@@ -50,18 +58,42 @@ def _num_cubes(ba: RawBuchi) -> int:
     return sum(len(cubes) for out in ba.edges.values() for cubes in out.values())
 
 
-def simulation(ba: RawBuchi, candidates: list[int] | None = None) -> list[set[int]]:
+def _atoms(ba: RawBuchi) -> list[str]:
+    return sorted(
+        {a for out in ba.edges.values() for cs in out.values() for c in cs for a in c.atoms}
+    )
+
+
+def _within_budget(ba: RawBuchi) -> bool:
+    atoms = len(_atoms(ba))
+    if atoms <= LETTER_ATOMS:
+        words = max(1, (1 << atoms) // 64)
+        return ba.num_states**2 * words <= LETTER_SIMULATION_BUDGET
+    return ba.num_states * _num_cubes(ba) <= SIMULATION_BUDGET
+
+
+def simulation(ba: RawBuchi) -> list[set[int]]:
     """``sim[p]``: the states that directly simulate ``p`` (``p`` itself included).
+
+    Up to :data:`LETTER_ATOMS` atoms by :func:`letter_simulation` on bit arrays, above by
+    :func:`cube_simulation`.
+    """
+    names = _atoms(ba)
+    if len(names) <= LETTER_ATOMS:
+        return [set(np.flatnonzero(row).tolist()) for row in letter_simulation(ba, names)]
+    return cube_simulation(ba)
+
+
+def cube_simulation(ba: RawBuchi) -> list[set[int]]:
+    """:func:`simulation` on the cubes, for any number of atoms.
 
     Greatest fixpoint by a worklist: a state is re-examined only when the simulators of
     one of its successors shrink. Relations and cubes are bit masks; for each transition
     of ``p`` and candidate ``q`` the targets that ``q`` reaches under a weaker cube are
     cached, so most checks are one mask intersection and only the rest need a cover test.
     """
+    names = _atoms(ba)
     n = ba.num_states
-    names = sorted(
-        {a for out in ba.edges.values() for cs in out.values() for c in cs for a in c.atoms}
-    )
     bit = {a: 1 << i for i, a in enumerate(names)}
     flat: list[list[tuple[int, Cube, int, int]]] = []
     pred: list[set[int]] = [set() for _ in range(n)]
@@ -75,41 +107,9 @@ def simulation(ba: RawBuchi, candidates: list[int] | None = None) -> list[set[in
     accepting_mask = sum(1 << q for q in ba.accepting)
     everyone = (1 << n) - 1
     sim = [accepting_mask if p in ba.accepting else everyone for p in range(n)]
-    if candidates is not None:
-        sim = [(s & c) | 1 << p for p, (s, c) in enumerate(zip(sim, candidates, strict=True))]
     implied: dict[tuple[int, int, int], int] = {}
-    # Few atoms: per letter, the targets of p (as a list) and of q (as a mask), so that
-    # q answers p when each target of p on each letter meets sim[target] among q's.
-    by_letter: list[list[tuple[int, list[int]]]] = []
-    q_masks: list[list[int]] = []
-    enabled: list[int] = []
-    if len(names) <= LETTER_ATOMS:
-        sets = LetterSets(names)
-        letters = range(1 << len(names))
-        for p in range(n):
-            out = [(t, sets.of_cubes(cubes)) for t, cubes in ba.edges.get(p, {}).items()]
-            masks = [sum(1 << t for t, ls in out if ls >> w & 1) for w in letters]
-            q_masks.append(masks)
-            enabled.append(sum(1 << w for w, mask in enumerate(masks) if mask))
-            targets: dict[int, list[int]] = {}
-            for mask in set(masks):
-                targets[mask] = [t for t in range(n) if mask >> t & 1]
-            by_letter.append([(w, targets[mask]) for w, mask in enumerate(masks) if mask])
-
-    def answers_by_letters(p: int, q: int) -> bool:
-        if enabled[p] & ~enabled[q]:
-            return False
-        q_row = q_masks[q]
-        for w, targets in by_letter[p]:
-            reach = q_row[w]
-            for t in targets:
-                if not sim[t] & reach:
-                    return False
-        return True
 
     def answers(p: int, q: int) -> bool:
-        if by_letter:
-            return answers_by_letters(p, q)
         for i, (target, cube, pos, neg) in enumerate(flat[p]):
             key = (p, i, q)
             weaker = implied.get(key)
