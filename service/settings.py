@@ -192,9 +192,11 @@ class Settings(BaseSettings):
     """Training processes per worker. None: the number of cores."""
 
     worker_nice: int = Field(default=10, ge=0, le=19)
-    """Niceness a worker adds to itself at start (Unix): planning and training are batch work
-    that uses every core, and yield it to the API, the dashboard and interactive use of the
-    machine. 0 keeps the priority of the shell that started it."""
+    """Niceness a worker adds to itself at start (Unix), and to its session's autogroup when it
+    leads its own session (Linux: sessions share the CPU first; ``service.jobs.priority``):
+    planning and training are batch work that uses every core, and yield it to the API, the
+    dashboard and interactive use of the machine. 0 keeps the priority of the shell that
+    started it."""
 
     broker_polling_interval: float = Field(default=0.05, gt=0)
     """Seconds between polls of the SQLAlchemy (embedded) broker; kombu's 1 s default makes

@@ -26,6 +26,7 @@ from kombu import Connection
 from kombu.transport import sqlalchemy as kombu_sqla
 
 from service.jobs import embedded_broker
+from service.jobs.priority import lower_priority
 from service.redact import redact_url, redact_urls
 from service.settings import Settings, get_settings
 
@@ -137,13 +138,6 @@ def make_celery(settings: Settings | None = None) -> LtlnavCelery:
 
 
 app = make_celery()
-
-
-def lower_priority(increment: int) -> None:
-    """Add ``increment`` to this process's niceness (its pool children inherit it): training
-    yields the cores to the API and to interactive work. No-op where ``os.nice`` is missing."""
-    if increment and hasattr(os, "nice"):
-        os.nice(increment)
 
 
 def run_worker(

@@ -21,6 +21,7 @@ from fastapi.testclient import TestClient
 from service.api.app import create_app
 from service.api.submission_gate import SubmissionGate
 from service.db import Database, upgrade
+from service.jobs.priority import autogroup_nice
 from tests.service.api_helpers import RecordingEnqueue, settings_for, tiny
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -145,11 +146,46 @@ def test_every_response_says_how_long_the_api_took(sqlite_url: str, tmp_path: Pa
 @pytest.mark.skipif(not hasattr(os, "nice"), reason="os.nice is Unix only")
 def test_a_worker_lowers_its_own_priority() -> None:
     code = (
-        "import os; from service.jobs.celery_app import lower_priority; "
+        "import os; from service.jobs.priority import lower_priority; "
         "before = os.nice(0); lower_priority(3); print(os.nice(0) - before)"
     )
     expected = str(min(3, 19 - os.nice(0)))
     assert _run_python(code) == expected
+
+
+def _run_in_session(code: str, own_session: bool) -> str:
+    done = subprocess.run(
+        [sys.executable, "-c", code],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        start_new_session=own_session,
+    )
+    assert done.returncode == 0, done.stderr
+    return done.stdout.strip()
+
+
+AUTOGROUP_CODE = (
+    "from service.jobs.priority import autogroup_nice, lower_priority; "
+    "before = autogroup_nice(); lower_priority(3); print(before, autogroup_nice())"
+)
+
+
+@pytest.mark.skipif(autogroup_nice() is None, reason="no Linux autogroup scheduling here")
+def test_a_worker_in_a_session_of_its_own_lowers_its_sessions_share_of_the_cpu() -> None:
+    # With autogroup scheduling the sessions share the CPU first: a worker's niceness alone
+    # leaves its session an equal share with the API's.
+    before, after = map(int, _run_in_session(AUTOGROUP_CODE, own_session=True).split())
+    assert after == min(19, before + 3)
+
+
+@pytest.mark.skipif(autogroup_nice() is None, reason="no Linux autogroup scheduling here")
+def test_a_worker_sharing_a_session_leaves_the_sessions_group_alone() -> None:
+    # The group is the shell's (here the test's): lowering it would lower them too.
+    ours = autogroup_nice()
+    before, after = map(int, _run_in_session(AUTOGROUP_CODE, own_session=False).split())
+    assert before == after == ours == autogroup_nice()
 
 
 def _keyed_app(sqlite_url: str, tmp_path: Path) -> tuple[Database, FastAPI]:
