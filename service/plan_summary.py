@@ -3,8 +3,8 @@ each sub-task."""
 
 from __future__ import annotations
 
+from planner.geometry.polyline import path_length
 from planner.plan import MissionPlan
-from planner.search.tl_rrt_star import path_length
 
 _SLACK = 1e-9
 

@@ -27,6 +27,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from planner.geometry.labels import LabelOracle
+from planner.geometry.polyline import path_length
 from planner.geometry.world import World
 from planner.search.product_edges import Successors, edges_ok
 
@@ -44,7 +45,9 @@ class LassoRun:
 
     @property
     def cost(self) -> float:
-        return self.weight * _length(self.prefix) + (1.0 - self.weight) * _length(self.suffix)
+        return self.weight * path_length(self.prefix) + (1.0 - self.weight) * path_length(
+            self.suffix
+        )
 
 
 def _directions(dim: int) -> np.ndarray:
@@ -52,10 +55,6 @@ def _directions(dim: int) -> np.ndarray:
     grid = np.array(np.meshgrid(*[[-1.0, 0.0, 1.0]] * dim, indexing="ij")).reshape(dim, -1).T
     grid = grid[np.any(grid != 0.0, axis=1)]
     return np.asarray(grid / np.linalg.norm(grid, axis=1, keepdims=True))
-
-
-def _length(x: np.ndarray) -> float:
-    return float(np.linalg.norm(np.diff(x, axis=0), axis=1).sum()) if len(x) > 1 else 0.0
 
 
 def _two_states_end(q: list[int], i: int) -> int:

@@ -33,6 +33,7 @@ import numpy as np
 
 from planner.errors import PlanningError, unsatisfiable
 from planner.geometry.labels import LabelOracle
+from planner.geometry.polyline import path_length
 from planner.geometry.world import World
 from planner.ltl.automaton import Buchi
 from planner.search.growth import Growth, SuffixGrowth
@@ -58,13 +59,6 @@ class Lasso:
     suffix_cost: float
     cost: float
     stats: dict[str, float] = field(default_factory=dict)
-
-
-def path_length(points: np.ndarray) -> float:
-    """Euclidean length of a polyline ``(n, d)``."""
-    if len(points) < 2:
-        return 0.0
-    return float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
 
 
 def default_eta(world: World) -> float:

@@ -9,13 +9,14 @@ import pytest
 
 from planner.errors import PlanningError
 from planner.geometry.labels import LabelOracle
+from planner.geometry.polyline import path_length
 from planner.geometry.shapes import Ball, Box, Polygon
 from planner.geometry.world import World
 from planner.ltl.formula import parse
 from planner.ltl.semantics import holds_on_lasso
 from planner.ltl.translate import translate
 from planner.search.planner_spec import PlannerSpec
-from planner.search.tl_rrt_star import Lasso, path_length, plan_lasso
+from planner.search.tl_rrt_star import Lasso, plan_lasso
 
 
 def world_2d() -> World:
