@@ -28,12 +28,17 @@ Words = NDArray[np.uint64]
 Bools = NDArray[np.bool_]
 
 
+def letter_words(atoms: int) -> int:
+    """64-bit words of a letter set over ``atoms`` atoms (``2^atoms`` letters)."""
+    return max(1, (1 << atoms) // 64)
+
+
 class _Edges:
     """The automaton's edges sorted by source, one per (source, target) with its letters."""
 
     def __init__(self, ba: RawBuchi, atom_names: list[str]) -> None:
         sets = LetterSets(atom_names)
-        self.words = max(1, (1 << len(atom_names)) // 64)
+        self.words = letter_words(len(atom_names))
         mask = (1 << 64) - 1
         rows = sorted(
             (p, t, sets.of_cubes(cubes))

@@ -19,7 +19,7 @@ import numpy as np
 from planner.ltl.automaton import nodes_on_cycles
 from planner.ltl.gba import RawBuchi, add_cube
 from planner.ltl.guard import Cube, covers
-from planner.ltl.letter_simulation import letter_simulation
+from planner.ltl.letter_simulation import letter_simulation, letter_words
 
 LETTER_ATOMS = 8
 """Up to this many atoms the simulation reasons letter by letter (2^8 letters)."""
@@ -67,8 +67,7 @@ def _atoms(ba: RawBuchi) -> list[str]:
 def _within_budget(ba: RawBuchi) -> bool:
     atoms = len(_atoms(ba))
     if atoms <= LETTER_ATOMS:
-        words = max(1, (1 << atoms) // 64)
-        return ba.num_states**2 * words <= LETTER_SIMULATION_BUDGET
+        return ba.num_states**2 * letter_words(atoms) <= LETTER_SIMULATION_BUDGET
     return ba.num_states * _num_cubes(ba) <= SIMULATION_BUDGET
 
 

@@ -10,8 +10,8 @@ tie): the reversed order, and with up to four obligations every order (Dwyer's p
 made copies of a GBA state at several levels: of the 61 formulas of
 ``planner.ltl.families`` and of robot tasks (2-8 goals) with two orders, the second won on
 12, never on one without such copies (``<>g1 && ... && <>g10``, 1024 states, is one: half
-its translation time was the second order). Guards stay DNF cubes
-throughout; only the simulation, up to 8 atoms, reasons on letter sets.
+its translation time was the second order). Guards stay DNF cubes throughout; only the
+simulation, up to 8 atoms, reasons on letter sets.
 """
 
 from __future__ import annotations
