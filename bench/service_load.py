@@ -15,8 +15,7 @@ databases), and every process is stopped at the end, also on errors and Ctrl-C.
    and no hand-over repair; one in ten cannot be planned (a region enclosed by obstacles, or a
    planner allowed one iteration) and must end ``failed`` with its reason.
    The submitters run in a process of their own, which reports each new mission as it is
-   created: in the pollers' loop their work delayed the replies it timed (that loop woke
-   23-65 ms late at the 99th percentile while submitting).
+   created, so that their work is not done in the loop that times the pollers' reads.
 2. Meanwhile ``--pollers`` (50) asyncio clients read ``GET /missions/{id}`` of random missions
    of their own key every ``--interval`` seconds: latency percentiles and every non-2xx.
 3. Every ``--sample`` seconds the bench counts the broker's messages (embedded: the rows of
