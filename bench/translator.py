@@ -11,7 +11,8 @@ shared).
 ``--baseline TREE`` translates every formula also with the translator of another checkout
 (e.g. ``git archive HEAD~3 | tar -x -C /tmp/old``); the two run in two worker processes fed
 alternately, one formula at a time, so both see the same load. ``--ltl2ba PATH`` adds the
-states and transitions of ltl2ba 1.x (built from its C sources; not shipped here) and
+states and transitions of ltl2ba 1.x (built from its C sources, not shipped here: in the
+source folder of LTL2BA 1.1, ``touch config.h && gcc -O2 -DNXT -o ltl2ba *.c``) and
 ``--spin`` those of ``spin -f`` (Debian's spin 6.5, Etessami-Holzmann's translator, which
 reads no ``X``). A translation over ``--timeout`` seconds shows ``-`` and ``>``.
 """
