@@ -41,7 +41,7 @@ def reduce_buchi(ba: RawBuchi) -> RawBuchi:
     ba = trim(merge_identical(trim(ba)))
     while True:
         size = (ba.num_states, _num_cubes(ba))
-        if not _within_budget(ba):
+        if not _within_budget(ba, cubes=size[1]):
             return ba
         sim = simulation(ba)
         merged = quotient(ba, sim)
@@ -64,11 +64,11 @@ def _atoms(ba: RawBuchi) -> list[str]:
     )
 
 
-def _within_budget(ba: RawBuchi) -> bool:
+def _within_budget(ba: RawBuchi, cubes: int) -> bool:
     atoms = len(_atoms(ba))
     if atoms <= LETTER_ATOMS:
         return ba.num_states**2 * letter_words(atoms) <= LETTER_SIMULATION_BUDGET
-    return ba.num_states * _num_cubes(ba) <= SIMULATION_BUDGET
+    return ba.num_states * cubes <= SIMULATION_BUDGET
 
 
 def simulation(ba: RawBuchi) -> list[set[int]]:
