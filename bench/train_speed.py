@@ -49,8 +49,12 @@ env step (replay ratio 1/2); ``lanes``: the lanes alone."""
 
 
 def mission_file(mission: str, overrides: dict[str, Any], seed: int, folder: Path) -> Path:
-    """The example with the variant's training overrides and the seed, written to ``folder``."""
-    document = yaml.safe_load((ROOT / "examples" / f"{mission}.yaml").read_text())
+    """The example (or bench mission) with the variant's training overrides and the seed,
+    written to ``folder``."""
+    source = ROOT / "examples" / f"{mission}.yaml"
+    if not source.is_file():
+        source = ROOT / "bench" / "missions" / f"{mission}.yaml"
+    document = yaml.safe_load(source.read_text())
     training = document.setdefault("training", {})
     for key, value in overrides.items():
         if isinstance(value, dict):
@@ -230,7 +234,12 @@ def rollout_cost(mission_file: Path, folder: Path, processes: int) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--missions", nargs="*", default=["car-phi2-fin"], help="example names")
+    p.add_argument(
+        "--missions",
+        nargs="*",
+        default=["car-phi2-fin"],
+        help="names of examples or of bench/missions files",
+    )
     p.add_argument("--variants", nargs="*", help="NAME=JSON training overrides (default: ours)")
     p.add_argument("--seeds", nargs="*", type=int, default=[0, 1, 2])
     p.add_argument("--jobs", type=int, default=2, help="--jobs of ltlnav train")

@@ -4,6 +4,7 @@ checkpoint (``workers.checkpoints``) or a finished job, and the best evaluated p
 
 from __future__ import annotations
 
+import os
 import pickle
 import warnings
 import zipfile
@@ -26,6 +27,27 @@ from workers.training_spec import TrainingSpec
 
 ALGORITHMS: dict[str, type[BaseAlgorithm]] = {"sac": SAC, "td3": TD3, "ddpg": DDPG, "ppo": PPO}
 """stable-baselines3 classes by ``training.algorithm`` name."""
+
+
+def algorithm_class(training: TrainingSpec) -> type[BaseAlgorithm]:
+    """The class that trains ``training``: stable-baselines3's, or with ``backend: sbx`` SBX's
+    SAC behind SB3 archives (``workers.sbx_agent``; XLA kept to ``torch_threads`` threads)."""
+    if training.backend == "sb3":
+        return ALGORITHMS[training.algorithm]
+    limit_xla_threads(training.torch_threads)
+    from workers.sbx_agent import SbxSAC  # JAX starts here, after its threads are set
+
+    return SbxSAC
+
+
+def limit_xla_threads(threads: int) -> None:
+    """Keep XLA to ``threads`` threads and to the CPU; effective only before JAX starts."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "intra_op_parallelism_threads" not in flags:
+        extra = f"--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads={threads}"
+        os.environ["XLA_FLAGS"] = f"{flags} {extra}".strip()
+    os.environ.setdefault("JAX_PLATFORMS", "cpu")
+
 
 ACTIVATION_MODULES: dict[str, type[torch.nn.Module]] = {
     "relu": torch.nn.ReLU,
@@ -97,7 +119,7 @@ def load_agent(
     with its replay buffer; else, with ``warm`` (a finished job's folder), its policy and
     newest replay buffer at step 0; else a fresh agent (``residual``: its action output starts
     at zero, ``workers.residual``)."""
-    cls = ALGORITHMS[training.algorithm]
+    cls = algorithm_class(training)
     found = checkpoints(folder)
     if not found and warm is not None:
         return _warm_agent(cls, env, warm, seed), 0
@@ -145,4 +167,4 @@ def keep_best_policy(
     last, best, path = evaluation.last_success_rate, evaluation.best, evaluation.best_path
     if best is None or last is None or best[1] <= last or path is None or not path.is_file():
         return model, None
-    return ALGORITHMS[training.algorithm].load(path, env=env, device="cpu"), best[0]
+    return algorithm_class(training).load(path, env=env, device="cpu"), best[0]

@@ -3,6 +3,7 @@ names, and the checks of ``policy_kwargs`` (``workers.training_spec.TrainingSpec
 
 from __future__ import annotations
 
+import importlib.util
 from typing import Any
 
 _OFF_POLICY = frozenset(
@@ -105,3 +106,41 @@ def valid_arch(arch: Any) -> bool:
     if isinstance(arch, dict):
         return bool(arch) and set(arch) <= {"pi", "qf", "vf"} and all(map(layers, arch.values()))
     return layers(arch)
+
+
+SBX_HYPERPARAMETERS = HYPERPARAMETERS["sac"] - {
+    "optimize_memory_usage",
+    "target_update_interval",
+    "use_sde",
+    "sde_sample_freq",
+    "use_sde_at_warmup",
+}
+"""The SAC hyperparameters SBX's SAC takes as stable-baselines3's does (``backend: sbx``)."""
+
+SBX_POLICY_KWARGS = frozenset({"net_arch", "activation_fn", "n_critics"})
+"""The ``policy_kwargs`` keys SBX's SAC policy takes as stable-baselines3's does."""
+
+
+def backend_problems(
+    backend: str, algorithm: str, hyperparams: dict[str, Any]
+) -> list[tuple[str, str]]:
+    """(field, problem) of each thing ``backend`` cannot train as asked."""
+    if backend == "sb3":
+        return []
+    if algorithm != "sac":
+        return [("backend", f"sbx trains sac only, not {algorithm}; use backend sb3")]
+    if importlib.util.find_spec("sbx") is None:
+        return [("backend", "sbx is not installed: pip install -e '.[sbx]' (SBX and JAX)")]
+    problems = [
+        (f"hyperparams.{k}", "not supported by backend sbx; use backend sb3 for it")
+        for k in hyperparams
+        if k not in SBX_HYPERPARAMETERS
+    ]
+    kwargs = hyperparams.get("policy_kwargs")
+    if isinstance(kwargs, dict):
+        problems += [
+            (f"hyperparams.policy_kwargs.{k}", "not supported by backend sbx; use backend sb3")
+            for k in kwargs
+            if k not in SBX_POLICY_KWARGS
+        ]
+    return problems

@@ -7,7 +7,8 @@ on every module) and, for SAC, builds a squashed Gaussian distribution only to t
 ``tanh`` of the actor's mean: on the 12-goal quadrotor's whole-mission rollouts those two were
 most of the policy's cost. ``deterministic_act`` switches the policy once (again only if training
 switched it back) and, for SAC without gSDE, takes ``tanh`` of the mean directly; other policies
-go through their own ``_predict``. The actions are the same numbers (tests compare them).
+go through their own ``_predict``; SBX's (JAX) policies through ``predict``, which compiles its
+own. The actions are the same numbers (tests compare them).
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ def deterministic_act(policy: BasePolicy) -> Act:
     """``policy``'s deterministic action for one observation or a batch of them (one row
     each), equal to ``policy.predict(obs, deterministic=True)[0]``."""
     space, action_space = policy.observation_space, policy.action_space
+    if is_jax_policy(policy):
+        return lambda obs: policy.predict(obs, deterministic=True)[0]
     if not isinstance(space, spaces.Box) or not isinstance(action_space, spaces.Box):
         return lambda obs: policy.predict(obs, deterministic=True)[0]
     obs_shape, action_shape = space.shape, action_space.shape
@@ -51,3 +54,8 @@ def deterministic_act(policy: BasePolicy) -> Act:
         return out if batched else out.squeeze(axis=0)
 
     return act
+
+
+def is_jax_policy(policy: BasePolicy) -> bool:
+    """Whether ``policy`` is an SBX (JAX) policy, whose networks are not torch modules."""
+    return hasattr(policy, "actor_state")

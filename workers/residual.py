@@ -22,6 +22,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 
 from workers.atomic import write_json
 from workers.evaluation import SubtaskEvaluation
+from workers.policy_act import is_jax_policy
 
 START_RECORD = "start_check.json"
 """File in a job's folder that keeps the start check's quick evaluation across restarts."""
@@ -29,7 +30,13 @@ START_RECORD = "start_check.json"
 
 def zero_output_layer(model: BaseAlgorithm) -> None:
     """Set the weights and bias of the layer that outputs the action mean to zero (SAC, TD3
-    and DDPG actors, PPO's action net; a target actor is synced)."""
+    and DDPG actors, PPO's action net, SBX's SAC actor; a target actor is synced)."""
+    if is_jax_policy(model.policy):
+        from workers.sbx_agent import SbxSAC, zero_mean_head  # loaded: the model is one
+
+        assert isinstance(model, SbxSAC)
+        zero_mean_head(model)
+        return
     policy = model.policy
     actor = getattr(policy, "actor", None)
     head = actor.mu if actor is not None else getattr(policy, "action_net", None)

@@ -31,10 +31,12 @@ from planner.geometry.shape_spec import raise_problems
 from workers.hyperparameters import (
     DEFAULT_POLICY_KWARGS,
     HYPERPARAMETERS,
+    backend_problems,
     policy_kwargs_problems,
 )
 
 Algorithm = Literal["sac", "td3", "ddpg", "ppo"]
+Backend = Literal["sb3", "sbx"]
 RewardModeName = Literal["rrt", "rrt-paper", "g-rrt", "ned", "tl"]
 
 TRAINING_ENV_DEFAULTS: dict[str, Any] = {"curriculum": 0.7, "rays": 16}
@@ -220,6 +222,12 @@ class TrainingSpec(BaseModel):
     torch_threads: int = Field(
         1, ge=1, description="torch threads per job (more is slower on a shared machine)."
     )
+    backend: Backend = Field(
+        "sb3",
+        description="Learner: 'sb3' (stable-baselines3, default) or 'sbx' (SBX: SAC on JAX, "
+        "needs the 'sbx' extra; the same hyperparameters and the same SB3 archives, Adam's "
+        "state not kept across a resume).",
+    )
     reward: RewardSpec = Field(default_factory=lambda: RewardSpec(), description="Reward.")
     protocol: Protocol = Field(
         "shaped",
@@ -274,6 +282,11 @@ class TrainingSpec(BaseModel):
                 problems.extend(policy_kwargs_problems(value))
         raise_problems(problems)
         return hyperparams
+
+    @model_validator(mode="after")
+    def _backend(self) -> TrainingSpec:
+        raise_problems(backend_problems(self.backend, self.algorithm, self.hyperparams))
+        return self
 
     def env_options(self, model: str, **overrides: Any) -> EnvOptions:
         """The training env options of a ``model`` robot with the reward constants
