@@ -88,7 +88,7 @@ def overhead(steps: int, repeats: int, mission_name: str) -> str:
             model.learn(steps)
             rates[name] = max(rates[name], steps / (time.process_time() - t0))
     share = 100.0 * (1.0 - rates["env"] / rates["bare"])
-    per_step = {name: _env_step_seconds(env, steps) for name, env in (("bare", bare), ("env", nav))}
+    per_step = {name: env_step_seconds(env, steps) for name, env in (("bare", bare), ("env", nav))}
     extra = per_step["env"] - per_step["bare"]
     return (
         f"| env | SAC steps per CPU second (best of {repeats}, {steps} steps) "
@@ -103,7 +103,7 @@ def overhead(steps: int, repeats: int, mission_name: str) -> str:
     )
 
 
-def _env_step_seconds(env: Any, steps: int) -> float:
+def env_step_seconds(env: Any, steps: int) -> float:
     """CPU seconds per step (resets included) of ``env`` under seeded random actions."""
     env.action_space.seed(0)
     env.reset(seed=0)

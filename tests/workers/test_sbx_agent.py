@@ -4,6 +4,7 @@ bundles work as with SB3."""
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Any
 
@@ -112,7 +113,7 @@ def test_a_zeroed_mean_layer_makes_the_zero_action(plan: MissionPlan) -> None:
     env.close()
 
 
-def test_a_job_checkpoints_resumes_and_keeps_sb3_archives(
+def test_a_job_checkpoints_resumes_warm_starts_and_keeps_sb3_archives(
     plan: MissionPlan, tmp_path: Path
 ) -> None:
     mission = sbx_mission()
@@ -128,6 +129,15 @@ def test_a_job_checkpoints_resumes_and_keeps_sb3_archives(
     second = train_subtask(mission, plan, SubtaskJob(subtask=0, training=more, seed=3), out, hooks)
     assert hooks.resumes == [200] and (second.resumed_from, second.steps) == (200, 300)
     assert [s for s, _ in second.curve] == [100, 200, 300]
+    short = TrainingSpec.model_validate({**mission.training.model_dump(), "n_timesteps": 100})
+    repair = dataclasses.replace(job, training=short, warm_start=out, seed=9, round=1)
+    warm = train_subtask(mission, plan, repair, out / "handover_1")
+    assert (warm.steps, warm.resumed_from) == (100, 0)
+    model = SAC.load(warm.model_path, device="cpu")
+    model.load_replay_buffer(
+        out / "handover_1" / "checkpoints" / "model_replay_buffer_100_steps.pkl"
+    )
+    assert model.replay_buffer is not None and model.replay_buffer.size() == 300 + 100
 
 
 def test_a_mission_trained_with_sbx_runs_from_its_bundle(plan: MissionPlan, tmp_path: Path) -> None:

@@ -1,0 +1,100 @@
+"""The learner's rate under each ``training.backend`` (issue 17, item 3): SAC of stable-baselines3
+against SAC of SBX (JAX), side by side in one run.
+
+Both learn on the NavEnv of a mission's sub-task 0 with its training options and the same
+hyperparameters (the mission's, over the defaults: network, batch, ``train_freq``), one thread
+each (``torch_threads``), built as a training job builds them (``workers.agents``). Each run
+first learns 1,000 steps (SBX compiles its update then; both fill past ``learning_starts``),
+then ``--steps`` timed steps; the backends alternate, best of ``--repeats``. Beside them, the
+env alone under seeded random actions: what is left of a training step is the learner's
+(its update, its action, the replay buffer and SB3's loop).
+
+Run ``.venv/bin/python bench/learner_backends.py [--missions NAME ...]`` (names of examples or
+of ``bench/missions`` files; about a minute per mission).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from functools import partial
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from bench.overhead import env_step_seconds  # noqa: E402
+from workers.mission import load_mission  # noqa: E402
+from workers.run import stored_or_new_plan  # noqa: E402
+
+BACKENDS = ("sb3", "sbx")
+WARM_UP = 1_000
+
+
+def mission_path(name: str) -> Path:
+    """The example called ``name``, else the bench mission."""
+    example = ROOT / "examples" / f"{name}.yaml"
+    return example if example.is_file() else ROOT / "bench" / "missions" / f"{name}.yaml"
+
+
+def rates(name: str, steps: int, repeats: int) -> str:
+    """One table row per backend: env steps per wall and per CPU second, ms per step."""
+    import numpy as np
+    import torch
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from workers.agents import algorithm_class, hyperparameters
+    from workers.training import subtask_env
+
+    mission = load_mission(mission_path(name))
+    out = Path(os.environ.get("TMPDIR", "/tmp")) / "ltlnav-bench-backends" / name
+    plan = stored_or_new_plan(mission, out)
+    torch.set_num_threads(mission.training.torch_threads)
+    best = {b: (0.0, 0.0) for b in BACKENDS}
+    for _ in range(repeats):
+        for backend in BACKENDS:
+            training = mission.training.model_copy(update={"backend": backend})
+            env = DummyVecEnv([partial(subtask_env, mission, plan, training, 0)])
+            shape = env.action_space.shape
+            assert shape is not None
+            params = hyperparameters(training, int(np.prod(shape)))
+            model = algorithm_class(training)("MlpPolicy", env, seed=0, device="cpu", **params)
+            model.learn(WARM_UP)
+            wall, cpu = time.perf_counter(), time.process_time()
+            model.learn(steps, reset_num_timesteps=False)
+            wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+            old_wall, old_cpu = best[backend]
+            best[backend] = (max(old_wall, steps / wall), max(old_cpu, steps / cpu))
+            env.close()
+    alone = env_step_seconds(subtask_env(mission, plan, mission.training, 0), steps)
+    rows = []
+    for backend in BACKENDS:
+        per_wall, per_cpu = best[backend]
+        learner = 1e3 * (1 / per_cpu - alone)
+        rows.append(
+            f"| {name} | {backend} | {per_wall:.0f} | {per_cpu:.0f} | {1e3 / per_cpu:.2f} "
+            f"| {1e3 * alone:.2f} | {learner:.2f} | {per_wall / best['sb3'][0]:.2f} |"
+        )
+    return "\n".join(rows)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--missions", nargs="*", default=["car-phi2-fin", "racecar-dense-forest"])
+    parser.add_argument("--steps", type=int, default=4_000, help="timed SAC steps per run")
+    parser.add_argument("--repeats", type=int, default=2)
+    args = parser.parse_args(argv)
+    print(
+        f"SAC on each mission's sub-task 0, {args.steps} timed steps, best of {args.repeats}, "
+        f"train_freq and network as the mission trains\n\n"
+        "| mission | backend | steps / wall s | steps / CPU s | ms per step | env alone, ms "
+        "| learner, ms | wall rate vs sb3 |\n|---|---|---|---|---|---|---|---|"
+    )
+    for name in args.missions:
+        print(rates(name, args.steps, args.repeats), flush=True)
+
+
+if __name__ == "__main__":
+    main()
