@@ -2,8 +2,9 @@
 against SAC of SBX (JAX), side by side in one run.
 
 Both learn on the NavEnv of a mission's sub-task 0 with its training options and the same
-hyperparameters (the mission's, over the defaults: network, batch, ``train_freq``), one thread
-each (``torch_threads``), built as a training job builds them (``workers.agents``). Each run
+hyperparameters (the mission's, over the defaults: network, batch, ``train_freq``), built as a
+training job builds them (``workers.agents``; torch on ``torch_threads`` threads, XLA on its own
+pool: the CPU rate below the wall rate shows what that pool adds). Each run
 first learns 1,000 steps (SBX compiles its update then; both fill past ``learning_starts``),
 then ``--steps`` timed steps; the backends alternate, best of ``--repeats``. Beside them, the
 env alone under seeded random actions: what is left of a training step is the learner's

@@ -31,22 +31,19 @@ ALGORITHMS: dict[str, type[BaseAlgorithm]] = {"sac": SAC, "td3": TD3, "ddpg": DD
 
 def algorithm_class(training: TrainingSpec) -> type[BaseAlgorithm]:
     """The class that trains ``training``: stable-baselines3's, or with ``backend: sbx`` SBX's
-    SAC behind SB3 archives (``workers.sbx_agent``; XLA kept to ``torch_threads`` threads)."""
+    SAC behind SB3 archives (``workers.sbx_agent``), JAX kept to the CPU.
+
+    XLA's thread count has no setting that holds in this JAX (0.10: ``XLA_FLAGS``'
+    ``xla_cpu_multi_thread_eigen`` and ``intra_op_parallelism_threads`` left a 512 x 512 matmul
+    at 1.8 CPU seconds per second); only the CPU affinity bounds it. SAC's small networks keep
+    it busy little: 1.07 CPU seconds per second on the racecar (``bench/learner_backends.py``).
+    """
     if training.backend == "sb3":
         return ALGORITHMS[training.algorithm]
-    limit_xla_threads(training.torch_threads)
-    from workers.sbx_agent import SbxSAC  # JAX starts here, after its threads are set
+    os.environ.setdefault("JAX_PLATFORMS", "cpu")  # no probing for accelerators
+    from workers.sbx_agent import SbxSAC
 
     return SbxSAC
-
-
-def limit_xla_threads(threads: int) -> None:
-    """Keep XLA to ``threads`` threads and to the CPU; effective only before JAX starts."""
-    flags = os.environ.get("XLA_FLAGS", "")
-    if "intra_op_parallelism_threads" not in flags:
-        extra = f"--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads={threads}"
-        os.environ["XLA_FLAGS"] = f"{flags} {extra}".strip()
-    os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
 
 ACTIVATION_MODULES: dict[str, type[torch.nn.Module]] = {

@@ -10,8 +10,7 @@ it. Adam's moment estimates are not carried across: an agent resumed from a chec
 warm-started keeps its weights, entropy coefficient and replay buffer, and its optimiser state
 starts afresh.
 
-Import this module only through ``workers.agents.algorithm_class``, which limits XLA's threads
-before JAX starts.
+Import this module through ``workers.agents.algorithm_class``, which keeps JAX to the CPU.
 """
 
 from __future__ import annotations
@@ -50,7 +49,7 @@ class SbxSAC(sbx.SAC):
     ``torch.nn`` activation class), saved to and loaded from SB3 ``SAC`` archives."""
 
     def __init__(self, policy: str, env: Any, **kwargs: Any) -> None:
-        kwargs.pop("device", None)  # JAX runs on the CPU (workers.agents.limit_xla_threads)
+        kwargs.pop("device", None)  # JAX runs on the CPU (workers.agents.algorithm_class)
         torch_kwargs = dict(kwargs.pop("policy_kwargs", None) or {})
         jax_kwargs = dict(torch_kwargs)
         if "activation_fn" in torch_kwargs:

@@ -226,7 +226,7 @@ class TrainingSpec(BaseModel):
         "sb3",
         description="Learner: 'sb3' (stable-baselines3, default) or 'sbx' (SBX: SAC on JAX, "
         "needs the 'sbx' extra; the same hyperparameters and the same SB3 archives, Adam's "
-        "state not kept across a resume).",
+        "state not kept across a resume; XLA's threads are not bounded by torch_threads).",
     )
     reward: RewardSpec = Field(default_factory=lambda: RewardSpec(), description="Reward.")
     protocol: Protocol = Field(
