@@ -77,12 +77,14 @@ class SbxSAC(sbx.SAC):
     def sb3_twin(self) -> SAC:
         """An SB3 ``SAC`` holding this agent's current weights (built once, then updated)."""
         if self._twin is None:
-            # a one-transition buffer: the twin never collects, its archive keeps the real size
-            keywords = {**self._sb3_kwargs, "buffer_size": 1, "learning_starts": 0}
+            # a one-transition buffer: the twin never collects, its archive keeps the real size;
+            # no seed: SB3 would reseed the process's global generators with it mid-training
+            keywords = {**self._sb3_kwargs, "buffer_size": 1, "learning_starts": 0, "seed": None}
             assert self.env is not None, "an agent saves with its env"
-            self._twin = SAC("MlpPolicy", self.env, device="cpu", **keywords)
-            self._twin.buffer_size = self.buffer_size
-            self._twin.learning_starts = self.learning_starts
+            twin = SAC("MlpPolicy", self.env, device="cpu", **keywords)
+            twin.buffer_size, twin.learning_starts = self.buffer_size, self.learning_starts
+            twin.seed = self.seed
+            self._twin = twin
         twin = self._twin
         twin.policy.load_state_dict(sb3_state_dict(self))
         if isinstance(self.ent_coef_init, str) and twin.log_ent_coef is not None:

@@ -61,9 +61,11 @@ def test_an_archive_holds_the_agents_networks_for_sb3(plan: MissionPlan, tmp_pat
     model, env = sbx_agent(mission, plan)
     model.learn(120)  # 50 steps to learn from, then updates: the weights moved from their init
     path = tmp_path / "model.zip"
+    sampled_by_the_buffer = np.random.get_state()[1].copy()
     model.save(path)
+    assert np.array_equal(np.random.get_state()[1], sampled_by_the_buffer)  # not reseeded
     archived = SAC.load(path, device="cpu")
-    assert archived.num_timesteps == model.num_timesteps == 120
+    assert archived.num_timesteps == model.num_timesteps == 120 and archived.seed == 0
     obs = probes(env)
     actions = model.predict(obs, deterministic=True)[0]
     np.testing.assert_allclose(archived.predict(obs, deterministic=True)[0], actions, atol=1e-5)
