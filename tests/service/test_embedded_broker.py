@@ -5,12 +5,14 @@ from __future__ import annotations
 import sqlite3
 from collections.abc import Iterator
 from pathlib import Path
+from queue import Empty
 from typing import Any
 
 import pytest
 from kombu import Connection
 from kombu.transport import sqlalchemy as kombu_sqla
 from sqlalchemy.exc import InvalidRequestError, OperationalError
+from sqlalchemy.orm.state_changes import _StateChangeStates
 
 from service.jobs import celery_app  # noqa: F401  (installs the embedded broker's channel)
 from service.jobs.embedded_broker import RecoveringChannel
@@ -42,6 +44,37 @@ def test_a_refused_commit_leaves_the_message_for_the_next_read(channel: Any) -> 
     refuse_next_commit(channel)
     with pytest.raises(OperationalError, match="database is locked"):
         channel._get("jobs")
+    assert channel._get("jobs") == {"task": "plan"}
+    assert channel._size("jobs") == 0
+
+
+def commit_in_progress(session: Any) -> None:
+    """Make the next commit of ``session`` leave it as if that commit were still running."""
+    commit = session.commit
+
+    def interrupted() -> None:
+        transaction = session._transaction
+        try:
+            commit()
+        finally:
+            transaction._current_fn = type(transaction).commit
+            transaction._next_state = _StateChangeStates.CHANGE_IN_PROGRESS
+
+    session.commit = interrupted
+
+
+def test_a_session_that_cannot_roll_back_is_replaced_and_the_message_read_again(
+    channel: Any,
+) -> None:
+    """The state a worker's consumer died in under load: a refused COMMIT left the session
+    "prepared" while SQLAlchemy's bookkeeping still showed the commit in progress."""
+    channel._put("jobs", {"task": "plan"})
+    stuck = channel.session
+    refuse_next_commit(channel)
+    commit_in_progress(stuck)
+    with pytest.raises(Empty):
+        channel._get("jobs")
+    assert channel.session is not stuck
     assert channel._get("jobs") == {"task": "plan"}
     assert channel._size("jobs") == 0
 
