@@ -27,17 +27,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench.overhead import env_step_seconds  # noqa: E402
+from bench.train_speed import mission_path  # noqa: E402
 from workers.mission import load_mission  # noqa: E402
 from workers.run import stored_or_new_plan  # noqa: E402
 
 BACKENDS = ("sb3", "sbx")
 WARM_UP = 1_000
-
-
-def mission_path(name: str) -> Path:
-    """The example called ``name``, else the bench mission."""
-    example = ROOT / "examples" / f"{name}.yaml"
-    return example if example.is_file() else ROOT / "bench" / "missions" / f"{name}.yaml"
 
 
 def rates(name: str, steps: int, repeats: int) -> str:

@@ -48,13 +48,16 @@ step every env step); ``lanes+tf2``: evaluations in 10 lanes and one gradient st
 env step (replay ratio 1/2); ``lanes``: the lanes alone."""
 
 
+def mission_path(name: str) -> Path:
+    """The example called ``name``, else the bench mission."""
+    example = ROOT / "examples" / f"{name}.yaml"
+    return example if example.is_file() else ROOT / "bench" / "missions" / f"{name}.yaml"
+
+
 def mission_file(mission: str, overrides: dict[str, Any], seed: int, folder: Path) -> Path:
     """The example (or bench mission) with the variant's training overrides and the seed,
     written to ``folder``."""
-    source = ROOT / "examples" / f"{mission}.yaml"
-    if not source.is_file():
-        source = ROOT / "bench" / "missions" / f"{mission}.yaml"
-    document = yaml.safe_load(source.read_text())
+    document = yaml.safe_load(mission_path(mission).read_text())
     training = document.setdefault("training", {})
     for key, value in overrides.items():
         if isinstance(value, dict):
