@@ -10,7 +10,9 @@ the point one braking length ahead on the guide (the velocity error over ``max_s
 acceleration from rest, none at top speed toward it, braking when it moves away). Robots
 driven by (forward, turn) actions (unicycle, racecar) get ``gain`` times a turn command toward
 the point of the guide ``HEADING_LOOKAHEAD`` seconds of their top speed ahead, on the turn
-component (proportional to the heading error, full at 90 degrees or more). Sums are clipped to
+component (proportional to the heading error, full at 90 degrees or more), and with
+``EnvOptions.feedforward_slowdown`` the forward command lowered by as much (the slowest forward
+speed at a full turn, so the robot turns back on its tightest circle). Sums are clipped to
 ``[-1, 1]``. Following the guide is then what a zero action does; the policy learns the
 correction around boxes and into the goal (residual policy learning, Silver et al. 2018;
 Johannink et al. 2019), instead of first having to discover motion at all.
@@ -310,6 +312,7 @@ class ActionShaping:
                 "options.guide_feedforward",
                 f"only for {', '.join(sorted(supported))} robots, not a {robot.name}",
             )
+        self.slowdown = options.feedforward_slowdown
         self.pursuit = 0.0
         """Turning radius of the pursuit law (0: the heading law)."""
         self.ahead = 0.0
@@ -372,6 +375,9 @@ class ActionShaping:
                 if robot.name in WORLD_FRAME_ROBOTS:
                     return with_feedforward(a, self.gain, toward)
                 turn = steering_toward(robot.heading(), toward)
+                if self.slowdown:
+                    slowest = -1.0 if self.forward is not None else 0.0
+                    a[0] = min(a[0], max(slowest, a[0] - self.gain * abs(turn)))
             a[1] = min(1.0, max(-1.0, a[1] + self.gain * turn))
         if self.forward is not None:
             a[0] = self.forward + (1.0 - self.forward) * 0.5 * (a[0] + 1.0)

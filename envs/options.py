@@ -89,6 +89,12 @@ class EnvOptions:
     in proportion to the heading error; ``"pursuit"`` (robots with a minimum turning radius),
     pure pursuit of a point along the guide (``envs.feedforward``; with ``drivable_guide``,
     along the dense redrawn path)."""
+    feedforward_slowdown: bool = False
+    """With ``guide_feedforward`` and ``feedforward_law`` ``"heading"``: the feed-forward also
+    lowers the forward command by the size of its turn command, no lower than the slowest
+    forward speed (``min_forward``; without it, standing), reached at a heading error of 90
+    degrees or more, so the robot turns on a tight circle where the guide turns back
+    (``envs.feedforward``). False: the forward command is the policy's alone."""
     pursuit_lookahead: float | None = None
     """With ``feedforward_law`` ``"pursuit"``: how far ahead on the guide the pursued point
     runs, in minimum turning radii of the robot. None: ``envs.feedforward.PURSUIT_LOOKAHEAD``."""
@@ -183,6 +189,11 @@ class EnvOptions:
             self.feedforward_law in ("heading", "pursuit"),
             "feedforward_law",
             "must be heading or pursuit",
+        )
+        need(
+            isinstance(self.feedforward_slowdown, bool),
+            "feedforward_slowdown",
+            "must be true or false",
         )
         need(
             self.drivable_guide is None or (number("drivable_guide") and self.drivable_guide >= 1),

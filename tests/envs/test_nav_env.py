@@ -610,6 +610,34 @@ def test_guide_feedforward_steers_a_heading_robot_toward_the_guide_ahead(
     assert steering_toward(heading, np.zeros(2)) == 0.0
 
 
+def test_feedforward_slowdown_turns_back_on_the_tightest_circle(envs: list[NavEnv]) -> None:
+    from envs.feedforward import heading_direction
+
+    def speed_after_zero_action(heading_error: float, **options: object) -> float:
+        env = build_env("unicycle", 2, guide_feedforward=1.0, min_forward=0.2, **options)
+        envs.append(env)
+        toward = heading_direction(env.robot, env.legs[0].track, -1, START_2D)
+        facing = math.atan2(toward[1], toward[0]) + heading_error
+        env.reset(seed=0, options={"position": START_2D, "heading": facing})
+        env.step(np.zeros(2))
+        moved = np.linalg.norm(env.robot.position() - np.asarray(START_2D))
+        return float(moved / env.robot.dt)
+
+    top = 1.0  # the unicycle's max_speed
+    slowdown = {"feedforward_slowdown": True}
+    # facing away: the slowest forward speed (min_forward) at full turn, not the zero action's
+    assert speed_after_zero_action(math.pi - 0.1, **slowdown) < 0.21 * top
+    assert speed_after_zero_action(math.pi - 0.1) > 0.5 * top
+    # facing along the guide: no slowdown; half-way (45 degrees): half of it
+    along = speed_after_zero_action(0.0)
+    assert speed_after_zero_action(0.0, **slowdown) == pytest.approx(along, rel=1e-6)
+    half = speed_after_zero_action(math.pi / 4, **slowdown)
+    assert half < speed_after_zero_action(math.pi / 4)
+    assert half > speed_after_zero_action(math.pi - 0.1, **slowdown)
+    with pytest.raises(EnvConfigError, match="feedforward_slowdown"):
+        build_env("unicycle", 2, guide_feedforward=1.0, feedforward_slowdown=1)
+
+
 def test_options_dataclass_documents_every_field() -> None:
     import ast
     import inspect
