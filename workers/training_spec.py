@@ -117,7 +117,7 @@ what an action means and which guide the reward follows). Measured in ``bench/LE
   slows down as it turns, so a guide that turns back at a hand-over becomes a tight U-turn:
   ``bench/zero_grid.py unicycle --seeds 0 40`` 102 -> 106 of 106 sub-tasks held (36 -> 40 of
   40 worlds); on seeds 40-99, not looked at while choosing it, 154 -> 155 of 160 (seed 66
-  loses a sub-task that cuts the corner behind a door, three others gain)."""
+  loses a sub-task that cuts the corner behind a door, four others gain)."""
 
 
 class RewardSpec(BaseModel):
