@@ -613,7 +613,7 @@ def test_guide_feedforward_steers_a_heading_robot_toward_the_guide_ahead(
 def test_feedforward_slowdown_turns_back_on_the_tightest_circle(envs: list[NavEnv]) -> None:
     from envs.feedforward import heading_direction
 
-    def speed_after_zero_action(heading_error: float, **options: object) -> float:
+    def speed_after_zero_action(heading_error: float, **options: Any) -> float:
         env = build_env("unicycle", 2, guide_feedforward=1.0, min_forward=0.2, **options)
         envs.append(env)
         toward = heading_direction(env.robot, env.legs[0].track, -1, START_2D)
