@@ -110,6 +110,10 @@ class EnvOptions:
     r_ball: float | None = None
     """Radius of the guide's r-balls. None: the plan's ``r_ball``, or the planner default
     (a fortieth of the world's diagonal, ``eta / 2``) without a plan."""
+    r_ball_within_clearance: bool = False
+    """With ``r_ball`` None: no wider than the clearance the plan keeps from obstacles, so that no
+    ball holds a point on the far side of a wall and progress never jumps through one (in a
+    large world the plan's ``r_ball`` is wider than a door). False: the plan's ``r_ball``."""
     goal_judge: GoalJudge = "region"
     """``"region"``: the goal is reached when the sub-task's goal region contains the robot's
     point (the guide's last r-ball for a sub-task without one); ``"guide_end"``: when the point
@@ -165,6 +169,11 @@ class EnvOptions:
             "set stall_steps or stall_spacings, not both",
         )
         need(isinstance(self.dense_progress, bool), "dense_progress", "must be true or false")
+        need(
+            isinstance(self.r_ball_within_clearance, bool),
+            "r_ball_within_clearance",
+            "must be true or false",
+        )
         need(
             self.stall_penalty is None or number("stall_penalty"), "stall_penalty", "must be finite"
         )

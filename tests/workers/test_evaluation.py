@@ -32,18 +32,21 @@ from .missions import tiny_mission
 
 
 def follower(env: Callable[[], NavEnv]) -> Callable[[np.ndarray], np.ndarray]:
-    """A PD controller of the point robot toward the r-ball two ahead of its progress, then
-    the centre of the goal region (the guide ends on its boundary)."""
+    """A PD controller of the point robot toward the first r-ball 0.3 m or more ahead of its
+    progress, then the centre of the goal region (the guide ends on its boundary)."""
 
     def act(_obs: np.ndarray) -> np.ndarray:
         sub = env()
         centers = sub.legs[0].guide.centers
-        target = centers[min(sub.progress_index + 2, len(centers) - 1)]
-        if sub.progress_index >= len(centers) - 2:
+        state = np.asarray(sub.robot.state)
+        d = len(centers[0])
+        ahead = np.linalg.norm(centers - state[:d], axis=1) >= 0.3
+        ahead[: sub.progress_index + 1] = False
+        k = int(np.argmax(ahead)) if ahead.any() else len(centers) - 1
+        target = centers[k]
+        if k >= len(centers) - 2:
             goal = sub.world.regions[sub.legs[0].subtask.goal]
             target = np.mean(goal.bounding_box(), axis=0)
-        state = np.asarray(sub.robot.state)
-        d = len(target)
         return np.clip(2.0 * (target - state[:d]) - 2.0 * state[d:], -1, 1).astype(np.float32)
 
     return act
