@@ -184,11 +184,12 @@ PostgreSQL test passed only while the assembly's writes fitted the pages already
 
 
 def assert_survives_a_full_disk(cluster: Cluster, disk: Path, refusal: str) -> None:
-    """``disk`` (the state's own filesystem) full for 15 s mid-training: the workers' writes
-    were refused with ``refusal`` in the logs, and the mission recovered (then the cluster
-    stops)."""
+    """``disk`` (the state's own filesystem) full for 15 s mid-training, and on until a write
+    of the workers was refused with ``refusal`` in the logs: the mission recovered (then the
+    cluster stops)."""
     try:
-        row = scenarios.database_outage(cluster, replace(TEST, budget=600), full_disk=disk)
+        scale = replace(TEST, budget=600)
+        row = scenarios.database_outage(cluster, scale, full_disk=disk, felt=refusal)
         assert_recovered(row, cluster)
         assert row.facts["filled bytes"] > 0, row
         assert refusal in cluster.tail(10**6), cluster.tail()

@@ -320,12 +320,21 @@ def _fill_disk(filler: Path) -> int:
     return written
 
 
-def database_outage(cluster: Cluster, scale: Scale, full_disk: Path | None = None) -> FaultRow:
+FELT_WITHIN = 30.0
+"""Seconds a full disk stays full past ``outage_seconds`` until the workers' logs show a write
+it refused (``database_outage``'s ``felt``): a write that fits pages the database already holds
+is not refused, and a short outage can pass without any other."""
+
+
+def database_outage(
+    cluster: Cluster, scale: Scale, full_disk: Path | None = None, felt: str | None = None
+) -> FaultRow:
     """The database unavailable to the workers for ``outage_seconds`` mid-training: PostgreSQL
     behind a paused proxy (connections cut and refused); SQLite locked by an exclusive
     transaction of another process, or, with ``full_disk`` (the folder of the state file, on a
     small filesystem of its own), that filesystem filled up (every write refused: "database or
-    disk is full"). The jobs must keep training and keep their attempt."""
+    disk is full"), and with ``felt`` kept full until the logs show that refusal (at most
+    ``FELT_WITHIN`` s more). The jobs must keep training and keep their attempt."""
     cluster.start_worker()
     mission_id, _ = cluster.submit(**scale.training())
     found = cluster.wait(_mid_training(cluster, mission_id, scale.budget), 240, "training")
@@ -349,7 +358,13 @@ def database_outage(cluster: Cluster, scale: Scale, full_disk: Path | None = Non
         filler = full_disk / "filler"
         row.facts["filled bytes"] = _fill_disk(filler)
         stop.wait(scale.outage_seconds)
+        deadline = time.monotonic() + FELT_WITHIN
+        while felt is not None and felt not in cluster.tail(10**6):
+            if time.monotonic() > deadline:
+                break
+            stop.wait(0.5)
         filler.unlink()
+        row.facts["full seconds"] = round(time.monotonic() - t0, 1)
     else:
         path = Path(cluster.settings.database_url.split(":///", 1)[1])
         _lock_sqlite(path, scale.outage_seconds, stop).join()
