@@ -28,7 +28,9 @@ class PlannerSpec(BaseModel):
     r_ball: float | None = Field(
         None,
         gt=0,
-        description="Radius of the guide's r-balls; default eta/2 (the paper's r <= eta/2).",
+        description="Radius of the guide's r-balls; default eta/2 (the paper's r <= eta/2). "
+        "Training's shaped env narrows them to the plan's clearance unless "
+        "training.env.r_ball_within_clearance is false.",
     )
     bias: float = Field(
         0.8,
