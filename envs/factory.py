@@ -169,8 +169,9 @@ def course(
     ``opts.drivable_guide``."""
     start = np.asarray(spec.position(), dtype=float)
     r_ball = opts.r_ball or (plan.r_ball if plan is not None else world.diagonal / 40.0)
-    if opts.r_ball is None and opts.r_ball_within_clearance and plan is not None:
-        r_ball = min(r_ball, plan.clearance) if plan.clearance > 0 else r_ball
+    within = opts.r_ball is None and opts.r_ball_within_clearance
+    if within and plan is not None and plan.clearance > 0:
+        r_ball = min(r_ball, plan.clearance)
     listed = plan.subtasks if plan is not None else []
     chosen = next((i for i, s in enumerate(listed) if s is subtasks[0]), None)
     pool = list(plan.subtasks) if plan is not None and chosen is not None else subtasks

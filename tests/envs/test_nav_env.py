@@ -685,16 +685,16 @@ def test_split_subtask_into_shorter_legs(envs: list[NavEnv]) -> None:
 
 def test_r_ball_within_clearance_keeps_every_ball_clear_of_obstacles(envs: list[NavEnv]) -> None:
     world, plan = planned(2, FINITE)
-    assert plan.r_ball > CLEARANCE
+    assert plan.r_ball > plan.clearance > 0
     wide = build_env("unicycle", 2, task=FINITE)
     held = build_env("unicycle", 2, task=FINITE, r_ball_within_clearance=True)
     given = build_env("unicycle", 2, task=FINITE, r_ball_within_clearance=True, r_ball=1.0)
     envs.extend([wide, held, given])
     assert {leg.guide.r for leg in wide.legs} == {plan.r_ball}
-    assert {leg.guide.r for leg in held.legs} == {CLEARANCE}
+    assert {leg.guide.r for leg in held.legs} == {plan.clearance}
     assert {leg.guide.r for leg in given.legs} == {1.0}
     for leg in held.legs:
-        assert not world.in_collision(leg.guide.centers, CLEARANCE - 1e-6).any()
+        assert not world.in_collision(leg.guide.centers, plan.clearance - 1e-6).any()
     assert any(world.in_collision(leg.guide.centers, plan.r_ball).any() for leg in wide.legs)
     with pytest.raises(EnvConfigError, match="r_ball_within_clearance"):
         EnvOptions(r_ball_within_clearance=1)  # type: ignore[arg-type]
