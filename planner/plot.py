@@ -8,6 +8,7 @@ the file backend (Agg) when it draws.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -29,25 +30,34 @@ SUFFIX_COLOUR = "#d0501f"
 BALL_COLOUR = "#c8a000"
 
 
-def plot_plan(world: World, plan: MissionPlan, out: Path, title: str = "") -> None:
-    """Draw obstacles, labelled regions, prefix and suffix, and each sub-task's r-balls."""
+def plot_plan(
+    world: World,
+    plan: MissionPlan,
+    out: Path,
+    title: str = "",
+    guides: Sequence[Guide] | None = None,
+) -> None:
+    """Draw obstacles, labelled regions, prefix and suffix, and each sub-task's r-balls: those of
+    ``guides`` (one per sub-task, what its agent trains on) or else the plan's own."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     figure = plt.figure(figsize=(7, 7) if world.dim == 2 else (8, 7))
+    if guides is None:
+        guides = [Guide.from_path(sub.path, plan.r_ball) for sub in plan.subtasks]
     if world.dim == 2:
-        _plot_2d(figure.add_subplot(), world, plan)
+        _plot_2d(figure.add_subplot(), world, plan, guides)
     else:
-        _plot_3d(figure.add_subplot(projection="3d"), world, plan)
+        _plot_3d(figure.add_subplot(projection="3d"), world, plan, guides)
     if title:
         figure.suptitle(title)
     figure.savefig(out, dpi=110, bbox_inches="tight")
     plt.close(figure)
 
 
-def _plot_2d(axes: Any, world: World, plan: MissionPlan) -> None:
+def _plot_2d(axes: Any, world: World, plan: MissionPlan, guides: Sequence[Guide]) -> None:
     axes.set_xlim(*world.bounds[0])
     axes.set_ylim(*world.bounds[1])
     axes.set_aspect("equal")
@@ -57,10 +67,10 @@ def _plot_2d(axes: Any, world: World, plan: MissionPlan) -> None:
         axes.add_patch(shape_patch(shape, REGION_COLOUR, alpha=0.55))
         centre = np.mean(shape.bounding_box(), axis=0)
         axes.annotate(label, centre, ha="center", va="center", fontsize=9, weight="bold")
-    for sub in plan.subtasks:
-        for centre in Guide.from_path(sub.path, plan.r_ball).centers:
+    for guide in guides:
+        for centre in guide.centers:
             axes.add_patch(
-                Circle(tuple(centre), plan.r_ball, fill=False, lw=0.5, color=BALL_COLOUR, alpha=0.7)
+                Circle(tuple(centre), guide.r, fill=False, lw=0.5, color=BALL_COLOUR, alpha=0.7)
             )
     prefix, suffix = plan.lasso.prefix, plan.lasso.suffix
     axes.plot(prefix[:, 0], prefix[:, 1], "-", color=PREFIX_COLOUR, lw=2, label="prefix")
@@ -70,7 +80,7 @@ def _plot_2d(axes: Any, world: World, plan: MissionPlan) -> None:
     axes.legend(loc="upper right", fontsize=8)
 
 
-def _plot_3d(axes: Any, world: World, plan: MissionPlan) -> None:
+def _plot_3d(axes: Any, world: World, plan: MissionPlan, guides: Sequence[Guide]) -> None:
     for dim, setter in enumerate((axes.set_xlim, axes.set_ylim, axes.set_zlim)):
         setter(*world.bounds[dim])
     for shape in world.obstacles:
@@ -95,8 +105,8 @@ def _plot_3d(axes: Any, world: World, plan: MissionPlan) -> None:
             lw=2,
             label="suffix",
         )
-    for sub in plan.subtasks:
-        centres = Guide.from_path(sub.path, plan.r_ball).centers
+    for guide in guides:
+        centres = guide.centers
         axes.scatter(centres[:, 0], centres[:, 1], centres[:, 2], color=BALL_COLOUR, s=6)
     axes.scatter(*prefix[0], color="black", s=30, label="start")
     axes.legend(loc="upper right", fontsize=8)

@@ -115,7 +115,7 @@ def plan(
         from planner.plot import plot_plan
 
         plot_out.parent.mkdir(parents=True, exist_ok=True)
-        plot_plan(world, result, plot_out, title=spec.name)
+        plot_plan(world, result, plot_out, title=spec.name, guides=spec.trained_guides(result))
         typer.echo(f"picture written to {plot_out}")
 
 

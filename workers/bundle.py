@@ -24,9 +24,9 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
-from envs.factory import subtask_guides
 from envs.options import EnvOptions
 from planner.geometry.world import World
+from planner.guidance import Guide
 from planner.plan import MissionPlan
 from planner.plot import plot_plan, shape_patch
 from planner.serialize import plan_to_dict
@@ -66,11 +66,11 @@ def manifest_for(
     evaluation: MissionEvaluation | None,
     seeds: Sequence[int],
     files: Sequence[str],
+    guides: Sequence[Guide],
 ) -> Manifest:
-    """The manifest of a bundle of ``results`` (one per sub-task, in order)."""
+    """The manifest of a bundle of ``results`` (one per sub-task, in order, trained on
+    ``guides``)."""
     training = mission.training
-    options = training.eval_env_options(mission.robot.model)
-    guides = subtask_guides(mission, plan, options)
     kwargs = training.policy_kwargs()
     if training.hyperparams.get("use_sde"):
         kwargs["use_sde"] = True
@@ -109,7 +109,7 @@ def manifest_for(
         subtasks=entries,
         cycles=training.cycles,
         mission_evaluation=evaluation.to_json() if evaluation is not None else None,
-        eval_env=eval_env_document(options),
+        eval_env=eval_env_document(training.eval_env_options(mission.robot.model)),
         files=list(files),
     )
 
@@ -134,16 +134,17 @@ def write_bundle(
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     world = mission.build_world()
+    guides = mission.trained_guides(plan)
     with tempfile.TemporaryDirectory(dir=out.parent) as tmp:
         pictures = {
-            "plan.png": lambda p: plot_plan(world, plan, p, title=mission.name),
+            "plan.png": lambda p: plot_plan(world, plan, p, title=mission.name, guides=guides),
             "learning_curves.png": lambda p: plot_curves(results, p),
             "rollout.png": lambda p: plot_rollouts(world, plan, evaluation, p),
         }
         for name, draw in pictures.items():
             draw(Path(tmp) / name)
         files = [*pictures, "README.md"]
-        manifest = manifest_for(mission, plan, results, evaluation, seeds, files)
+        manifest = manifest_for(mission, plan, results, evaluation, seeds, files, guides)
         partial = out.with_name(out.name + ".partial")
         with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as archive:
             archive.writestr(MANIFEST, manifest.model_dump_json(indent=1, exclude={"lasso"}))

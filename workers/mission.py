@@ -13,7 +13,7 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import numpy as np
 from pydantic import (
@@ -28,6 +28,7 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
+from envs.factory import subtask_guides
 from envs.spec import RobotSpec
 from planner.errors import FormulaError, WorldError
 from planner.geometry.shape_spec import raise_problems
@@ -38,6 +39,10 @@ from planner.search.planner_spec import PlannerSpec
 from workers.documents import read_document
 from workers.mission_errors import MissionError, problems_from_validation_error
 from workers.training_spec import TrainingSpec
+
+if TYPE_CHECKING:
+    from planner.guidance import Guide
+    from planner.plan import MissionPlan
 
 __all__ = ["MissionError", "MissionSpec", "load_mission", "parse_mission"]
 
@@ -183,6 +188,12 @@ class MissionSpec(BaseModel):
             cache.world = self.world.build(keep_clear=[self.robot.position()])
             cache.key = key
         return cache.world
+
+    def trained_guides(self, plan: MissionPlan) -> list[Guide]:
+        """The guide each sub-task of ``plan`` is trained and evaluated on (r-balls narrowed to
+        the plan's clearance, a car's path redrawn), as pictures and summaries show it."""
+        options = self.training.eval_env_options(self.robot.model)
+        return subtask_guides(self, plan, options, self.build_world())
 
     @model_validator(mode="after")
     def _consistent(self) -> MissionSpec:

@@ -112,7 +112,7 @@ class MissionView(BaseModel):
     plan: dict[str, Any] | None = Field(
         description="Plan summary once planned: automaton_states, pruned_states, "
         "prefix_length, suffix_length, cost, seconds, subtasks [{index, phase, goal, "
-        "length, balls}]."
+        "length, balls, r_ball}]: the r-balls its agent trains on."
     )
     jobs: list[JobView] = Field(description="One training job per sub-task, by index.")
     repairs: list[JobView] = Field(

@@ -11,6 +11,7 @@ with a reason.
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -40,19 +41,19 @@ from workers.run import MissionRun
 log = logging.getLogger(__name__)
 
 
-def plan_summary(plan: MissionPlan) -> dict[str, Any]:
-    """The stored plan summary (``Mission.plan``)."""
+def plan_summary(plan: MissionPlan, guides: Sequence[Guide]) -> dict[str, Any]:
+    """The stored plan summary (``Mission.plan``); ``guides`` are the sub-tasks' trained ones."""
     subtasks = []
-    for sub in plan.subtasks:
+    for sub, guide in zip(plan.subtasks, guides, strict=True):
         length = float(np.sum(np.linalg.norm(np.diff(sub.path, axis=0), axis=1)))
-        balls = Guide.from_path(sub.path, plan.r_ball).num_balls
         subtasks.append(
             {
                 "index": sub.index,
                 "phase": sub.phase,
                 "goal": sub.goal,
                 "length": length,
-                "balls": balls,
+                "balls": guide.num_balls,
+                "r_ball": guide.r,
             }
         )
     return {
@@ -110,8 +111,9 @@ def plan_step(settings: Settings, mission_id: str, dispatch: Dispatch) -> str:
         if not plan.subtasks:
             fail_mission(db, mission_id, "the plan has no sub-task to train (no goal region)")
             return "failed"
+        guides = run.mission.trained_guides(plan)
         image = run.folder / "plan.png"
-        _plot(run, image)
+        _plot(run, image, guides)
         jobs = [
             repository.NewJob(
                 index=job.subtask,
@@ -126,7 +128,7 @@ def plan_step(settings: Settings, mission_id: str, dispatch: Dispatch) -> str:
             ):
                 return "lost"  # reclaimed while this attempt still ran: it writes nothing
             image_path = str(image) if image.is_file() else None
-            repository.set_plan(session, mission_id, plan_summary(plan), image_path)
+            repository.set_plan(session, mission_id, plan_summary(plan, guides), image_path)
             rows = repository.create_jobs(session, mission_id, jobs)
             indices = [row.index for row in rows]
             try:
@@ -143,11 +145,11 @@ def plan_step(settings: Settings, mission_id: str, dispatch: Dispatch) -> str:
     return "planned"
 
 
-def _plot(run: MissionRun, out: Path) -> None:
+def _plot(run: MissionRun, out: Path, guides: Sequence[Guide]) -> None:
     """The plan picture (as ``ltlnav plan --plot``); a failure costs the picture only."""
     from planner.plot import plot_plan
 
     try:
-        plot_plan(run.mission.build_world(), run.plan, out, title=run.mission.name)
+        plot_plan(run.mission.build_world(), run.plan, out, title=run.mission.name, guides=guides)
     except (OSError, ValueError, RuntimeError):
         log.exception("could not draw the plan of %s", out.parent.name)

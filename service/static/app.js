@@ -265,8 +265,9 @@ function planSection(mission, image) {
     ["automaton states", "pruned states", "prefix length", "suffix length", "cost", "planning time"],
     [[plan.automaton_states, plan.pruned_states, num(plan.prefix_length), num(plan.suffix_length),
       num(plan.cost), `${num(plan.seconds)} s`]], [0, 1, 2, 3, 4, 5]);
-  const subtasks = table(["sub-task", "phase", "goal", "length", "r-balls"],
-    (plan.subtasks || []).map((t) => [t.index, t.phase, t.goal, num(t.length), t.balls]), [0, 3, 4]);
+  const subtasks = table(["sub-task", "phase", "goal", "length", "r-balls", "ball radius"],
+    (plan.subtasks || []).map((t) => [t.index, t.phase, t.goal, num(t.length), t.balls,
+      num(t.r_ball)]), [0, 3, 4, 5]);
   return h("div", {}, image, summary, h("h3", {}, "Sub-tasks"), subtasks);
 }
 

@@ -25,6 +25,7 @@ from service.models import Job, JobStatus, MissionStatus, utcnow
 from service.settings import Settings
 from tests.service.dispatch import Recorder
 from tests.workers.missions import tiny_mission
+from workers.bundle_reader import read_bundle
 from workers.hooks import CurvePoint
 
 pytestmark = pytest.mark.timeout(120)
@@ -109,6 +110,19 @@ def test_a_mission_runs_through_plan_train_assemble(settings: Settings) -> None:
     assert mission.status == MissionStatus.done
     assert Path(mission.bundle_path) == folder / "bundle.zip" and (folder / "bundle.zip").is_file()
     assert mission.evaluation["episodes"] == 2
+    manifest, _ = read_bundle(mission.bundle_path)
+    shown = [(s["balls"], s["r_ball"]) for s in mission.plan["subtasks"]]
+    assert shown == [(len(e.guide_centers), e.r_ball) for e in manifest.subtasks]
+
+
+def test_the_plan_summary_shows_the_r_balls_the_agents_train_on(settings: Settings) -> None:
+    doc = tiny_mission().model_dump(mode="json")
+    doc["planner"]["r_ball"] = 0.5  # wider than the plan's 0.35 m clearance: narrowed to it
+    mission_id = submit(settings, doc)
+    assert plan_step(settings, mission_id, Recorder()) == "planned"
+    mission, *_ = load(settings, mission_id)
+    radii = [s["r_ball"] for s in mission.plan["subtasks"]]
+    assert radii == pytest.approx([0.35] * len(radii))
 
 
 def test_an_infeasible_mission_fails_with_the_planners_reason(settings: Settings) -> None:
