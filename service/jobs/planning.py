@@ -15,9 +15,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from planner.errors import PlanningError
+from planner.geometry.polyline import path_length
 from planner.guidance import Guide
 from planner.plan import MissionPlan
 from service import repository
@@ -45,13 +44,12 @@ def plan_summary(plan: MissionPlan, guides: Sequence[Guide]) -> dict[str, Any]:
     """The stored plan summary (``Mission.plan``); ``guides`` are the sub-tasks' trained ones."""
     subtasks = []
     for sub, guide in zip(plan.subtasks, guides, strict=True):
-        length = float(np.sum(np.linalg.norm(np.diff(sub.path, axis=0), axis=1)))
         subtasks.append(
             {
                 "index": sub.index,
                 "phase": sub.phase,
                 "goal": sub.goal,
-                "length": length,
+                "length": path_length(sub.path),
                 "balls": guide.num_balls,
                 "r_ball": guide.r,
             }
