@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -170,6 +170,43 @@ class StopOnSuccessRate(BaseCallback):
             self.reached = check.success_rate >= self.target
             self.confirmed = check if self.reached else None
         return not self.reached
+
+
+def evaluations_since_best(curve: Sequence[tuple[int, float]]) -> int:
+    """Evaluations of ``curve`` (``(steps, success rate)``) after its first highest success
+    rate, the one whose policy ``ResumableEvalCallback`` keeps (0: none, or the last is it)."""
+    rates = [rate for _, rate in curve]
+    return len(rates) - 1 - rates.index(max(rates)) if rates else 0
+
+
+class StopOnPlateau(BaseCallback):
+    """Stop training once ``plateaued(evaluation.success_curve, patience, floor)`` (the start
+    check's rate, when measured, is the curve's first point); ``patience`` None: never."""
+
+    def __init__(
+        self, evaluation: ResumableEvalCallback, patience: int | None, floor: float
+    ) -> None:
+        super().__init__()
+        self.evaluation = evaluation
+        self.patience, self.floor = patience, floor
+        self.plateaued = False
+        self._seen = len(evaluation.evaluations_successes)
+
+    def _on_step(self) -> bool:
+        evaluations = len(self.evaluation.evaluations_successes)
+        if self.patience is None or evaluations == self._seen:
+            return True
+        self._seen = evaluations
+        self.plateaued = plateaued(self.evaluation.success_curve, self.patience, self.floor)
+        return not self.plateaued
+
+
+def plateaued(curve: Sequence[tuple[int, float]], patience: int | None, floor: float) -> bool:
+    """Whether ``curve``'s best success rate is at least ``floor`` and the last ``patience``
+    evaluations did not beat it (``patience`` None: never)."""
+    if patience is None or not curve:
+        return False
+    return max(rate for _, rate in curve) >= floor and evaluations_since_best(curve) >= patience
 
 
 class StopOnRequest(BaseCallback):

@@ -39,8 +39,10 @@ from workers.callbacks import (
     ReportedCheckpoints,
     ReportProgress,
     ResumableEvalCallback,
+    StopOnPlateau,
     StopOnRequest,
     StopOnSuccessRate,
+    plateaued,
 )
 from workers.checkpoints import prune_checkpoints, save_checkpoint
 from workers.evaluation import SubtaskEvaluation, evaluate_subtask, seed_lanes
@@ -53,7 +55,7 @@ from workers.training_spec import TrainingSpec
 
 __all__ = ["ALGORITHMS", "TrainResult", "TrainingError", "subtask_env", "train_subtask"]
 
-Stopped = Literal["budget", "target", "cancelled"]
+Stopped = Literal["budget", "target", "plateau", "cancelled"]
 
 RESULT = "result.json"
 """A finished job's ``TrainResult`` in its folder."""
@@ -82,9 +84,11 @@ class TrainResult:
     resumed_from: int
     """Steps restored from a checkpoint at the start of this call (0: fresh start)."""
     stopped: Stopped
-    """Why training ended: the budget, the target success rate, or a cancel request."""
+    """Why training ended: the budget, the target success rate, ``plateau_evals`` evaluations
+    without a new best, or a cancel request."""
     policy_steps: int | None = None
-    """Steps of the policy kept when the budget ran out before the target: that of the best
+    """Steps of the policy kept when the budget ran out (or a plateau stopped training) before
+    the target: that of the best
     periodic evaluation (the first with the highest success rate), if better than the last one;
     None: the policy at ``steps``."""
     curve: list[tuple[int, float]] = field(default_factory=list)
@@ -147,7 +151,8 @@ def train_subtask(
     """Train (or resume training) the agent of ``job`` into ``out_dir``.
 
     Stops early when a periodic evaluation reaches ``target_success`` and the final evaluation
-    (``final_eval_episodes``), run then, confirms it; else training goes on to the budget. A
+    (``final_eval_episodes``), run then, confirms it, or after ``plateau_evals`` evaluations
+    without a new best (when set); else training goes on to the budget. A
     ``hooks.should_stop()`` ends the job after a checkpoint (``stopped="cancelled"``).
     Deterministic for ``job.seed`` on one machine.
     """
@@ -187,11 +192,14 @@ def stored_result(folder: Path) -> TrainResult | None:
 
 
 def _finished(result: TrainResult, training: TrainingSpec) -> bool:
-    """Whether a stored result answers ``training``: its budget was spent, or it stopped at
-    the target and the confirmation that stopped it reaches it (a result below a raised
-    target, or short of a raised budget, trains on; the reported evaluation decides nothing)."""
+    """Whether a stored result answers ``training``: its budget was spent, it stopped at the
+    target and the confirmation that stopped it reaches it, or it stopped on a plateau that
+    ``plateau_evals`` still calls one (a result below a raised target, short of a raised budget
+    or of a raised patience trains on; the reported evaluation decides nothing)."""
     if result.steps >= training.n_timesteps:
         return True
+    if result.stopped == "plateau":
+        return plateaued(result.curve, training.plateau_evals, training.plateau_from)
     passed = result.confirmations[-1][1] if result.confirmations else None
     return result.stopped == "target" and (passed is None or passed >= training.target_success)
 
@@ -299,8 +307,10 @@ class _SubtaskTraining:
         every = training.checkpoint_freq or training.eval_freq
         cancel = StopOnRequest(hooks.should_stop)
         checkpointer = ReportedCheckpoints(every, self.folder, hooks)
+        plateau = StopOnPlateau(evaluation, training.plateau_evals, training.plateau_from)
         callbacks: list[BaseCallback] = [
             evaluation,
+            plateau,
             checkpointer,
             PruneCheckpoints(self.folder, every),
             cancel,
@@ -308,9 +318,10 @@ class _SubtaskTraining:
         ]
         hooks.progress(self.resumed, evaluation.last_success_rate, training.n_timesteps)
         met_at_start = start is not None and start.confirmed is not None
+        flat = plateaued(evaluation.success_curve, training.plateau_evals, training.plateau_from)
         cancelled = hooks.should_stop()
         remaining = training.n_timesteps - self.resumed
-        if remaining > 0 and not cancelled and not met_at_start:
+        if remaining > 0 and not cancelled and not met_at_start and not flat:
             model.learn(remaining, callback=CallbackList(callbacks), reset_num_timesteps=False)
             cancelled = cancel.stopped or checkpointer.fenced or evaluation.fenced
         steps = int(model.num_timesteps)
@@ -324,6 +335,8 @@ class _SubtaskTraining:
             stopped = "cancelled"
         elif stopper.reached or met_at_start:
             stopped = "target"
+        elif (flat or plateau.plateaued) and steps < training.n_timesteps:
+            stopped = "plateau"
         result = TrainResult(
             subtask=self.job.subtask,
             seed=self.job.seed,
@@ -334,7 +347,7 @@ class _SubtaskTraining:
             curve=evaluation.success_curve,
             confirmations=list(self.confirmations),
         )
-        if stopped == "budget":
+        if stopped in ("budget", "plateau"):
             model, result.policy_steps = keep_best_policy(model, evaluation, training, self.env)
             self.model, self.act = model, deterministic_act(model.policy)
         if stopped != "cancelled" and not hooks.may_write():

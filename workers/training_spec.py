@@ -202,6 +202,21 @@ class TrainingSpec(BaseModel):
         description="Stop early once a periodic evaluation reaches this rate and the final "
         "evaluation (final_eval_episodes), run at that point, confirms it.",
     )
+    plateau_evals: int | None = Field(
+        None,
+        ge=1,
+        description="Stop training once the best periodic success rate is at least "
+        "plateau_from and this many evaluations in a row have not beaten it, and keep the best "
+        "one's policy (None: train on to n_timesteps).",
+    )
+    plateau_from: float = Field(
+        0.9,
+        ge=0,
+        le=1,
+        description="The best periodic success rate from which plateau_evals stops training: "
+        "below it a flat curve is a sub-task still to learn (SAC's often stay flat for tens of "
+        "thousands of steps before they rise), which trains on.",
+    )
     checkpoint_freq: int | None = Field(
         None, ge=1, description="Env steps between checkpoints (None: every eval_freq steps)."
     )

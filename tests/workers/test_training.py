@@ -16,7 +16,12 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from planner.plan import MissionPlan
 from planner.serialize import plan_from_dict, plan_to_dict
 from workers.agents import OFF_POLICY_TRAIN_FREQ, keep_best_policy
-from workers.callbacks import ResumableEvalCallback, StopOnSuccessRate
+from workers.callbacks import (
+    ResumableEvalCallback,
+    StopOnSuccessRate,
+    evaluations_since_best,
+    plateaued,
+)
 from workers.evaluation import SubtaskEvaluation
 from workers.jobs import SubtaskJob
 from workers.mission import MissionError, MissionSpec
@@ -293,6 +298,42 @@ def test_the_best_evaluation_keeps_its_policy(
     assert record == {"steps": result.curve[rates.index(max(rates))][0], "success_rate": max(rates)}
     assert SAC.load(out / "best_model.zip", device="cpu").num_timesteps == record["steps"]
     assert result.policy_steps == (record["steps"] if max(rates) > rates[-1] else None)
+
+
+def test_evaluations_since_best_count_from_the_first_highest_rate() -> None:
+    assert evaluations_since_best([]) == 0
+    assert evaluations_since_best([(0, 0.5)]) == 0
+    assert evaluations_since_best([(0, 0.5), (5, 0.8), (10, 0.8), (15, 0.7)]) == 2
+    assert evaluations_since_best([(0, 0.5), (5, 0.8), (10, 0.9)]) == 0
+    curve = [(0, 0.5), (5, 0.8), (10, 0.8), (15, 0.7)]
+    assert plateaued(curve, 2, 0.8) and not plateaued(curve, 3, 0.8)
+    assert not plateaued(curve, 2, 0.85) and not plateaued(curve, None, 0.0)
+
+
+def test_a_plateau_stops_training_keeps_the_best_and_a_raised_patience_trains_on(
+    mission: MissionSpec, plan: MissionPlan, tmp_path: Path
+) -> None:
+    out = tmp_path / "job"
+    spec = job(mission, n_timesteps=1000, eval_freq=100, plateau_evals=2, plateau_from=0.0)
+    flat = job(mission, n_timesteps=300, eval_freq=100, plateau_evals=1, plateau_from=1.0)
+    low = train_subtask(mission, plan, flat, tmp_path / "low")
+    assert low.stopped != "plateau" or max(r for _, r in low.curve) == 1.0
+    first = train_subtask(mission, plan, spec, out)
+    # rates are 0 or 1 (one episode each): the best rises at most once, so 2 evaluations
+    # without a new best come by step 500
+    assert first.stopped == "plateau" and first.steps == first.curve[-1][0] <= 500
+    assert evaluations_since_best(first.curve) == 2
+    rates = [r for _, r in first.curve]
+    record = json.loads((out / "best_model.json").read_text())
+    assert record["steps"] == first.curve[rates.index(max(rates))][0]
+    assert first.policy_steps == (record["steps"] if max(rates) > rates[-1] else None)
+    assert train_subtask(mission, plan, spec, out).steps == first.steps  # finished: kept
+    patient = job(mission, n_timesteps=1000, eval_freq=100, plateau_evals=3, plateau_from=0.0)
+    more = train_subtask(mission, plan, patient, out)
+    assert more.resumed_from == first.steps and more.curve[: len(first.curve)] == first.curve
+    assert more.stopped == "plateau" and evaluations_since_best(more.curve) == 3
+    unbounded = train_subtask(mission, plan, job(mission, n_timesteps=1000, eval_freq=100), out)
+    assert unbounded.stopped in ("budget", "target") and unbounded.resumed_from == more.steps
 
 
 def test_a_budget_run_out_after_unlearning_keeps_thekeep_best_policy(
