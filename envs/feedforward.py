@@ -277,6 +277,21 @@ def point_to_go(track: Track, left: float) -> np.ndarray:
     return np.asarray(points[k - 1] + min(max(share, 0.0), 1.0) * (points[k] - points[k - 1]))
 
 
+def lead_target(track: Track, left: float) -> np.ndarray:
+    """The point of ``track``'s reversing lead with path length ``left`` to its end; past the
+    cusp, on the line the lead ends along, so that the point the car backs towards stays the
+    lookahead away instead of closing in on the cusp (the car then circled onto it)."""
+    end = track.cusp
+    over = float(track.togo[end]) - left
+    if over <= 0 or end < 1:
+        return point_to_go(track, left)
+    direction = track.points[end] - track.points[end - 1]
+    length = float(np.linalg.norm(direction))
+    if length == 0:
+        return np.asarray(track.points[end], dtype=float)
+    return np.asarray(track.points[end] + over * direction / length, dtype=float)
+
+
 def pursuit_turn(
     heading: float, x: Sequence[float] | np.ndarray, target: np.ndarray, turning_radius: float
 ) -> float:
@@ -358,7 +373,7 @@ class ActionShaping:
                         self._lead_of = track
                 if backwards:
                     assert cusp is not None
-                    target = point_to_go(track, max(on - self.ahead, cusp))
+                    target = lead_target(track, on - self.ahead)
                     turn = -pursuit_turn(robot.heading() + math.pi, x, target, self.pursuit)
                 else:
                     on = projected_togo(track, index, x)

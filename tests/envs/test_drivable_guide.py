@@ -15,7 +15,14 @@ import pytest
 from envs.drivable import clearances, redraw_course
 from envs.errors import EnvConfigError
 from envs.factory import make_env
-from envs.feedforward import PURSUIT_LOOKAHEAD, ActionShaping, Track, pursuit_target, pursuit_turn
+from envs.feedforward import (
+    PURSUIT_LOOKAHEAD,
+    ActionShaping,
+    Track,
+    lead_target,
+    pursuit_target,
+    pursuit_turn,
+)
 from envs.handover import arrival_pose
 from envs.options import EnvOptions
 from envs.robots import make_robot, robot_params
@@ -132,6 +139,16 @@ def test_pursuit_target_runs_ahead_of_the_projection_on_the_guide() -> None:
     np.testing.assert_allclose(pursuit_target(track, 2, [2.3, 0.5], 1.0), [3.3, 0.0])
     np.testing.assert_allclose(pursuit_target(track, -1, [-1.0, 0.0], 0.5), [0.5, 0.0])
     np.testing.assert_allclose(pursuit_target(track, 5, [4.8, 0.0], 2.0), [5.0, 0.0])
+
+
+def test_the_point_backed_towards_runs_on_past_the_cusp_along_the_lead() -> None:
+    # backing east 2 m to the cusp at (2, 0), then forwards north 3 m
+    lead = np.array([[0.1 * i, 0.0] for i in range(21)])
+    onward = np.array([[2.0, 0.1 * i] for i in range(1, 31)])
+    track = Track.dense(np.vstack([lead, onward]), 6, cusp=20)
+    assert track.cusp_togo is not None
+    np.testing.assert_allclose(lead_target(track, track.cusp_togo + 0.5), [1.5, 0.0], atol=1e-9)
+    np.testing.assert_allclose(lead_target(track, track.cusp_togo - 0.7), [2.7, 0.0], atol=1e-9)
 
 
 def test_pursuit_on_a_dense_track_follows_the_arc_the_balls_cut() -> None:
