@@ -6,8 +6,9 @@ sub-tasks are redrawn in the order a rollout drives them (the prefix, then the s
 the first from the mission start, every other one from where the previous *redrawn* guide
 enters its goal region, facing along it (``envs.handover.arrival_pose``), which is also where
 ``envs.handover`` starts it. So a U-turn at a hand-over becomes a loop the car can drive. Each
-guide is redrawn at the largest clearance that fits of :func:`clearances`; a sub-task that fits
-none keeps its polyline (the env still trains, on the guide a point robot would follow).
+guide is redrawn keeping the largest of :func:`clearances` each of its pieces fits (a piece
+keeps less only where nothing keeps more); a sub-task that fits none keeps its polyline (the env
+still trains, on the guide a point robot would follow).
 
 The redrawn paths are dense (``planner.geometry.drivable.STEP`` apart);
 ``envs.factory.build_course`` thins them to the guide's ball spacing. Redrawing every sub-task
@@ -66,11 +67,9 @@ def redraw_course(
     pose = start
     for k in lasso_stages(subtasks, 1):
         sub = subtasks[k]
-        path = None
-        for clearance in clearance_steps:
-            path = drivable_path(world, np.asarray(sub.path, dtype=float), pose, rho, clearance)
-            if path is not None:
-                break
+        first, *rest = clearance_steps
+        polyline = np.asarray(sub.path, dtype=float)
+        path = drivable_path(world, polyline, pose, rho, first, fallback=rest)
         if path is not None:
             points = path.points
             drawn[k] = dataclasses.replace(

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,6 +42,10 @@ are ranked: a short back-up then a drive forwards, rather than a long reversing 
 
 TURN_AROUND_TRIES = 200
 """Drivable turn-around pieces tried, shortest first, before the redraw gives up."""
+
+TIGHT_COST = 1.0
+"""How much more a metre of a piece counts per step down the redraw's clearances: a piece that
+keeps less than the full clearance is taken where nothing longer by up to this share keeps it."""
 
 
 @dataclass(frozen=True)
@@ -126,6 +130,7 @@ def drivable_path(
     rho: float,
     clearance: float,
     *,
+    fallback: Sequence[float] = (),
     spacing: float | None = None,
     reach: float | None = None,
 ) -> DrivablePath | None:
@@ -133,50 +138,64 @@ def drivable_path(
     (see the module docstring): points at most ``STEP`` apart from the start's position to
     ``path[-1]``, or None when no such chain keeps ``clearance``.
 
-    ``spacing`` (default ``rho``) is the waypoint spacing along the polyline and ``reach``
-    (default ``6 rho``) the longest stretch of polyline one piece may replace."""
+    ``fallback``: smaller clearances, largest first, that a piece may keep where none keeps
+    ``clearance`` (each step down costs ``TIGHT_COST`` times the piece's length more), so that
+    one tight spot, such as a turn-around at the start, does not bring the whole path down to
+    its clearance. ``spacing`` (default ``rho``) is the waypoint spacing along the polyline and
+    ``reach`` (default ``6 rho``) the longest stretch of polyline one piece may replace."""
     if world.dim != 2:
         raise ValueError("drivable paths are planar: the world must be 2D")
-    if not rho > 0 or not clearance >= 0:
-        raise ValueError("the turning radius must be > 0 and the clearance >= 0")
+    levels = [clearance, *fallback]
+    if not rho > 0 or not all(c >= 0 for c in levels):
+        raise ValueError("the turning radius must be > 0 and the clearances >= 0")
     poly = np.asarray(path, dtype=float)
     nodes = waypoints(poly, spacing or rho)
     span = reach if reach is not None else 6.0 * rho
-    checker = _Checker(
-        world, clearance, allowed_regions(world, poly, np.asarray(start.position, dtype=float))
-    )
+    allowed = allowed_regions(world, poly, np.asarray(start.position, dtype=float))
+    checkers = [_Checker(world, c, allowed) for c in levels]
     count = len(nodes)
     cost = [math.inf] * count
     parent = [-2] * count
     pieces: list[np.ndarray | None] = [None] * count
     cusps = [0] * count
 
-    def relax(source: int, origin: Pose, base: float, lo: float, lead: Lead | None = None) -> None:
+    def relax(source: int, origin: Pose, base: float, lo: float, lead: Lead | None = None) -> bool:
+        """Offer the pieces from ``origin``; whether one keeps the full clearance."""
+        full = False
         for j in range(count):
             if nodes[j].along < lo or nodes[j].along > lo + span:
                 continue
             if j <= source:
                 continue
             for piece in dubins_words(origin, nodes[j].pose, rho):
-                total = base + piece.length
-                if total >= cost[j]:
+                if base + piece.length >= cost[j]:
                     break
-                pts = checker.points(piece)
-                if pts is not None:
+                found = _drawn(checkers, piece)
+                if found is None:
+                    continue
+                pts, level = found
+                total = base + piece.length * (1.0 + TIGHT_COST * level)
+                if total < cost[j]:
                     joined = pts if lead is None else np.vstack([lead.points, pts[1:]])
                     cost[j], parent[j], pieces[j] = total, source, joined
                     cusps[j] = 0 if lead is None else lead.cusp
+                if level == 0:
+                    full = True
                     break
+        return full
 
-    relax(-1, start, 0.0, 0.0)
+    direct = relax(-1, start, 0.0, 0.0)
     join = next((n for n in nodes if n.along >= 2.0 * rho), nodes[-1]).pose
-    for backwards in (False, True):
-        if any(math.isfinite(c) for c in cost):
+    for level, checker in enumerate(checkers):
+        if direct or any(math.isfinite(c) for c in cost):
             break
-        for lead in _turn_arounds(checker, start, join, rho, backwards):
-            relax(-1, lead.end, lead.cost, 0.0, lead)
-            if not backwards and any(math.isfinite(c) for c in cost):
-                break  # backing up, every lead is tried: the cheapest chain wins
+        for backwards in (False, True):
+            if any(math.isfinite(c) for c in cost):
+                break
+            for lead in _turn_arounds(checker, start, join, rho, backwards):
+                relax(-1, lead.end, lead.cost * (1.0 + TIGHT_COST * level), 0.0, lead)
+                if not backwards and any(math.isfinite(c) for c in cost):
+                    break  # backing up, every lead is tried: the cheapest chain wins
     for i in range(count):
         if math.isfinite(cost[i]):
             relax(i, nodes[i].pose, cost[i], nodes[i].along, None)
@@ -192,6 +211,15 @@ def drivable_path(
         first, j = j, parent[j]
     chain.reverse()
     return DrivablePath(np.vstack([chain[0], *(c[1:] for c in chain[1:])]), cusps[first])
+
+
+def _drawn(checkers: Sequence[_Checker], piece: DubinsPath) -> tuple[np.ndarray, int] | None:
+    """The piece's points and the first of ``checkers`` it satisfies (None: none)."""
+    for level, checker in enumerate(checkers):
+        pts = checker.points(piece)
+        if pts is not None:
+            return pts, level
+    return None
 
 
 def _backwards(pose: Pose) -> Pose:

@@ -118,6 +118,27 @@ def test_a_start_facing_a_wall_backs_into_a_side_opening_to_turn() -> None:
     assert not world.in_collision(path, 0.3).any()
 
 
+def test_a_tight_spot_lowers_the_clearance_there_alone() -> None:
+    """A box 0.55 m above the start, a wall inside the corner 8 m on: at 0.8 m no path fits;
+    at 0.5 m alone the corner is cut to 0.63 m; with 0.5 m as the fallback of 0.8 m only the
+    start keeps less, and the corner keeps its 0.8 m."""
+    tight = Box(np.array([2.5, 2.55]), np.array([3.5, 4.0]))
+    inside = Box(np.array([6.0, 3.0]), np.array([9.0, 12.0]))
+    bounds = np.array([[0.0, 13.0], [0.0, 12.0]])
+    world = World(bounds, [tight, inside], {})
+    corner = World(bounds, [inside], {})
+    poly = np.array([[2.0, 2.0], [10.5, 2.0], [10.5, 11.0]])
+    start = Pose(np.array([2.0, 2.0]), 0.0)
+    assert drivable_path(world, poly, start, rho=1.0, clearance=0.8) is None
+    low = drivable_path(world, poly, start, rho=1.0, clearance=0.5)
+    assert low is not None and corner.obstacle_distance(low.points).min() < 0.7
+    mixed = drivable_path(world, poly, start, rho=1.0, clearance=0.8, fallback=(0.5,))
+    assert mixed is not None
+    assert world.obstacle_distance(mixed.points).min() >= 0.5
+    assert corner.obstacle_distance(mixed.points).min() >= 0.8
+    np.testing.assert_allclose(mixed.points[-1], [10.5, 11.0])
+
+
 def test_no_room_to_turn_gives_none() -> None:
     narrow = World(np.array([[-2.0, 12.0], [1.0, 3.0]]), [], {})
     assert (
