@@ -278,9 +278,8 @@ def point_to_go(track: Track, left: float) -> np.ndarray:
 
 
 def lead_target(track: Track, left: float) -> np.ndarray:
-    """The point of ``track``'s reversing lead with path length ``left`` to its end; past the
-    cusp, on the line the lead ends along, so that the point the car backs towards stays the
-    lookahead away instead of closing in on the cusp (the car then circled onto it)."""
+    """The point of ``track``'s lead with path length ``left`` to its end, past the cusp on the
+    line the lead ends along: backing towards it, the car no longer circles onto the cusp."""
     end = track.cusp
     over = float(track.togo[end]) - left
     if over <= 0 or end < 1:
