@@ -88,9 +88,8 @@ class TrainResult:
     without a new best, or a cancel request."""
     policy_steps: int | None = None
     """Steps of the policy kept when the budget ran out (or a plateau stopped training) before
-    the target: that of the best
-    periodic evaluation (the first with the highest success rate), if better than the last one;
-    None: the policy at ``steps``."""
+    the target: that of the best periodic evaluation (the first with the highest success rate),
+    if better than the last one; None: the policy at ``steps``."""
     curve: list[tuple[int, float]] = field(default_factory=list)
     """``(steps, success rate)`` of every periodic evaluation (and of the start check at step 0
     of a residual agent, ``workers.residual``)."""

@@ -159,9 +159,7 @@ def drivable_path(
     pieces: list[np.ndarray | None] = [None] * count
     cusps = [0] * count
 
-    def relax(source: int, origin: Pose, base: float, lo: float, lead: Lead | None = None) -> bool:
-        """Offer the pieces from ``origin``; whether one keeps the full clearance."""
-        full = False
+    def relax(source: int, origin: Pose, base: float, lo: float, lead: Lead | None = None) -> None:
         for j in range(count):
             if nodes[j].along < lo or nodes[j].along > lo + span:
                 continue
@@ -180,14 +178,12 @@ def drivable_path(
                     cost[j], parent[j], pieces[j] = total, source, joined
                     cusps[j] = 0 if lead is None else lead.cusp
                 if level == 0:
-                    full = True
-                    break
-        return full
+                    break  # a longer word can only cost more
 
-    direct = relax(-1, start, 0.0, 0.0)
+    relax(-1, start, 0.0, 0.0)
     join = next((n for n in nodes if n.along >= 2.0 * rho), nodes[-1]).pose
-    for level, checker in enumerate(checkers):
-        if direct or any(math.isfinite(c) for c in cost):
+    for level, checker in enumerate(checkers):  # no piece joins the start: turn round first
+        if any(math.isfinite(c) for c in cost):
             break
         for backwards in (False, True):
             if any(math.isfinite(c) for c in cost):
