@@ -65,9 +65,9 @@ def redraw_course(
         return list(hit[1])
     drawn: list[SubTask] = list(subtasks)
     pose = start
+    first, *rest = clearance_steps
     for k in lasso_stages(subtasks, 1):
         sub = subtasks[k]
-        first, *rest = clearance_steps
         polyline = np.asarray(sub.path, dtype=float)
         path = drivable_path(world, polyline, pose, rho, first, fallback=rest)
         if path is not None:
