@@ -107,11 +107,17 @@ class _Checker:
     def points(self, piece: DubinsPath) -> np.ndarray | None:
         """The piece's points when it is drivable, else None."""
         pts, _ = piece.sample(STEP)
-        if not np.all(self.world.segments_free(pts[:-1], pts[1:], self.clearance)):
-            return None
-        if self.forbidden.any() and np.any(self.world.label_matrix(pts)[:, self.forbidden]):
-            return None
-        return pts
+        return pts if self.clear(pts) and self.allowed(pts) else None
+
+    def clear(self, pts: np.ndarray) -> bool:
+        """Whether the polyline ``pts`` keeps the clearance from obstacles and bounds."""
+        return bool(np.all(self.world.segments_free(pts[:-1], pts[1:], self.clearance)))
+
+    def allowed(self, pts: np.ndarray) -> bool:
+        """Whether ``pts`` meet only allowed regions."""
+        return not (
+            self.forbidden.any() and np.any(self.world.label_matrix(pts)[:, self.forbidden])
+        )
 
 
 def allowed_regions(world: World, path: np.ndarray, start: np.ndarray) -> np.ndarray:
@@ -210,12 +216,13 @@ def drivable_path(
 
 
 def _drawn(checkers: Sequence[_Checker], piece: DubinsPath) -> tuple[np.ndarray, int] | None:
-    """The piece's points and the first of ``checkers`` it satisfies (None: none)."""
-    for level, checker in enumerate(checkers):
-        pts = checker.points(piece)
-        if pts is not None:
-            return pts, level
-    return None
+    """The piece's points and the first of ``checkers`` (one world, regions and clearances
+    largest first) whose clearance it keeps (None: none, or a forbidden region)."""
+    pts, _ = piece.sample(STEP)
+    if not checkers[0].allowed(pts):
+        return None
+    level = next((k for k, checker in enumerate(checkers) if checker.clear(pts)), None)
+    return None if level is None else (pts, level)
 
 
 def _backwards(pose: Pose) -> Pose:
