@@ -99,3 +99,28 @@ def test_a_plan_that_could_not_keep_the_margin_keeps_what_room_there_is() -> Non
     assert gaps.min() >= 0.39
     tight = plan_mission(world, "<>g1", start, 0.3, QUICK)  # no margin asked: pulled tight
     assert obstacle_gaps(tight, world).min() < 0.31
+
+
+def test_the_margin_is_kept_along_the_long_chords_of_a_fallen_back_plan() -> None:
+    """After the narrow door of ``door()``, a 1.4 m door crossed on the slant: pulled tight, the
+    plan's long chord grazes its post, and the push must hold the margin between samples too
+    (measured every 9th of a chord, a post between two samples went unseen: 0.31 m)."""
+    world = World(
+        np.array([[0.0, 20.0], [0.0, 10.0]]),
+        [
+            *door().obstacles,
+            Box(np.array([11.9, 0.0]), np.array([12.1, 2.0])),
+            Box(np.array([11.9, 3.4]), np.array([12.1, 10.0])),
+        ],
+        {"g1": Ball(np.array([18.5, 1.0]), 0.5)},
+    )
+    for seed in range(3):
+        spec = QUICK.model_copy(update={"margin": 0.3, "seed": seed})
+        plan = plan_mission(world, "<>g1", np.array([1.5, 1.5]), 0.3, spec)
+        assert plan.clearance == pytest.approx(0.3)
+        path = np.concatenate([plan.lasso.prefix, plan.lasso.suffix])
+        t = np.linspace(0.0, 1.0, 2000)
+        dense = path[:-1, None, :] + t[None, :, None] * (path[1:] - path[:-1])[:, None, :]
+        beyond = dense.reshape(-1, 2)
+        beyond = beyond[beyond[:, 0] > 7.0]  # past the narrow door, where the margin fits
+        assert world.obstacle_distance(beyond).min() >= 0.55
