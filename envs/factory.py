@@ -20,7 +20,6 @@ import numpy as np
 
 from envs.drivable import clearances, redraw_course
 from envs.errors import EnvConfigError
-from envs.feedforward import Track
 from envs.handover import checked_starts, opening_pose, real_starts
 from envs.leg import Leg
 from envs.nav_env import NavEnv
@@ -35,6 +34,7 @@ from envs.robots import (
     robot_params,
 )
 from envs.spec import RobotSpec
+from envs.track import Track
 from planner.geometry.drivable import thin
 from planner.geometry.pose import Pose, heading_along
 from planner.geometry.region_test import RegionTest

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from envs.feedforward import Track
+from envs.track import Track
 from planner.geometry.region_test import RegionTest
 from planner.guidance import Guide, ProgressTracker
 
@@ -31,4 +31,4 @@ class Leg:
     headings: list[float]
     """Yaw from each ball's centre toward the guide ahead (curriculum starts)."""
     track: Track
-    """The path the pursuit feed-forward follows (``envs.feedforward.Track``)."""
+    """The path the pursuit feed-forward follows (``envs.track.Track``)."""

@@ -15,18 +15,12 @@ import pytest
 from envs.drivable import clearances, redraw_course
 from envs.errors import EnvConfigError
 from envs.factory import make_env
-from envs.feedforward import (
-    PURSUIT_LOOKAHEAD,
-    ActionShaping,
-    Track,
-    lead_target,
-    pursuit_target,
-    pursuit_turn,
-)
+from envs.feedforward import PURSUIT_LOOKAHEAD, ActionShaping, pursuit_turn
 from envs.handover import arrival_pose
 from envs.options import EnvOptions
 from envs.robots import make_robot, robot_params
 from envs.spec import RobotSpec
+from envs.track import Track, lead_target, pursuit_target
 from planner.geometry.drivable import thin
 from planner.geometry.pose import Pose
 from planner.geometry.shapes import Ball, Box

@@ -557,7 +557,8 @@ def test_min_forward_maps_the_forward_command(envs: list[NavEnv]) -> None:
 def test_guide_feedforward_drives_along_the_guide_and_the_policy_corrects_it(
     envs: list[NavEnv],
 ) -> None:
-    from envs.feedforward import pursuit_direction, pursuit_target
+    from envs.feedforward import pursuit_direction
+    from envs.track import pursuit_target
 
     env = build_env("point", 2, guide_feedforward=0.5)
     envs.append(env)
@@ -582,13 +583,9 @@ def test_guide_feedforward_drives_along_the_guide_and_the_policy_corrects_it(
 def test_guide_feedforward_steers_a_heading_robot_toward_the_guide_ahead(
     envs: list[NavEnv],
 ) -> None:
-    from envs.feedforward import (
-        HEADING_LOOKAHEAD,
-        heading_direction,
-        pursuit_target,
-        steering_toward,
-    )
+    from envs.feedforward import HEADING_LOOKAHEAD, heading_direction, steering_toward
     from envs.robots import nominal_speed
+    from envs.track import pursuit_target
 
     env = build_env("unicycle", 2, guide_feedforward=1.0, min_forward=0.2)
     envs.append(env)
