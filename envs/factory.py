@@ -241,7 +241,8 @@ def build_course(
             balls = thin(path, 2.0 * r_ball)
             guide = Guide.from_path(balls, r_ball)
             assert guide.num_balls == len(balls)  # thinned chords are never longer than 2 r
-            tracks.append(Track.dense(path, guide.num_balls, sub.reverse))
+            slack = world.obstacle_distance(path) - radius
+            tracks.append(Track.dense(path, guide.num_balls, sub.reverse, slack))
         else:
             guide = Guide.from_path(path, r_ball)
             tracks.append(Track.of_guide(guide))

@@ -72,6 +72,12 @@ seeds 0-19, 20 starts a sub-task, planner margin 0.3 m): 0.5 s holds 52 of 52 su
 chord cuts the towers' corners where the r-balls are wide)."""
 
 
+TIGHT_SLACK = 0.2
+"""Room, in minimum turning radii (0.12 m for the racecar), between the robot and the
+obstacles along the track ahead under which the pursuit law uses
+``EnvOptions.pursuit_tight_lookahead``. A guide drawn at the robot's radius plus half the
+margin or more keeps more (0.15 m for the racecar)."""
+
 CUSP_REACHED = 0.05
 """Metres short of the end of a reversing lead (``Track.cusp``) from which the pursuit law
 drives forwards again, until the car enters a leg anew."""
@@ -183,9 +189,12 @@ class ActionShaping:
         """Turning radius of the pursuit law (0: the heading law)."""
         self.ahead = 0.0
         """How far ahead on the guide the pursuit law's point runs, metres."""
+        self.tight_ahead = 0.0
+        """How far it runs where the track ahead is tight, metres (0: as far)."""
         if options.feedforward_law == "pursuit":
             self.pursuit = robot.params.min_turning_radius()
             self.ahead = (options.pursuit_lookahead or PURSUIT_LOOKAHEAD) * self.pursuit
+            self.tight_ahead = (options.pursuit_tight_lookahead or 0.0) * self.pursuit
             if self.pursuit <= 0 or robot.name not in HEADING_FEATURES:
                 raise EnvConfigError(
                     "options.feedforward_law",
@@ -200,6 +209,12 @@ class ActionShaping:
         """A leg begins (an episode, or the next leg of a course): its reversing lead, if it
         has one, is to be driven."""
         self._lead_of = None
+
+    def _lookahead(self, track: Track, on: float) -> float:
+        """The pursuit law's lookahead from ``on`` metres to go on ``track``: the tight one
+        where the track up to the usual target passes within ``TIGHT_SLACK`` of touching."""
+        tight = track.least_slack(on, on - self.ahead) < TIGHT_SLACK * self.pursuit
+        return self.tight_ahead if self.tight_ahead and tight else self.ahead
 
     def apply(self, action: np.ndarray, track: Track, index: int) -> np.ndarray:
         """``action``, validated (a bad action must not be mapped into the box and slip
@@ -229,7 +244,7 @@ class ActionShaping:
                 else:
                     on = projected_togo(track, index, x)
                     on = on if cusp is None else min(on, cusp)
-                    target = point_to_go(track, on - self.ahead)
+                    target = point_to_go(track, on - self._lookahead(track, on))
                     turn = pursuit_turn(robot.heading(), x, target, self.pursuit)
             else:
                 if robot.name == "point":

@@ -98,6 +98,12 @@ class EnvOptions:
     pursuit_lookahead: float | None = None
     """With ``feedforward_law`` ``"pursuit"``: how far ahead on the guide the pursued point
     runs, in minimum turning radii of the robot. None: ``envs.feedforward.PURSUIT_LOOKAHEAD``."""
+    pursuit_tight_lookahead: float | None = None
+    """With ``feedforward_law`` ``"pursuit"`` on a redrawn guide: the lookahead, in minimum
+    turning radii, where the track from the robot's projection to the pursued point passes
+    within ``envs.feedforward.TIGHT_SLACK`` turning radii of touching an obstacle (a narrow
+    door): pursuit starts a turn about a lookahead early and cuts its inside. None: the
+    lookahead everywhere."""
     drivable_guide: float | None = None
     """Robots with a minimum turning radius (racecar) only: redraw every guide as a path of
     Dubins arcs of this multiple (>= 1) of that radius, from the pose the mission hands the
@@ -147,7 +153,8 @@ class EnvOptions:
         )
         need(integer("lookahead") and self.lookahead >= 0, "lookahead", "must be an integer >= 0")
         need(integer("rays") and self.rays >= 0, "rays", "must be an integer >= 0")
-        for name in ("lookahead_range", "ray_range", "r_ball", "pursuit_lookahead"):
+        positive = ("lookahead_range", "ray_range", "r_ball", "pursuit_lookahead")
+        for name in (*positive, "pursuit_tight_lookahead"):
             value = getattr(self, name)
             need(value is None or (number(name) and value > 0), name, "must be > 0")
         need(number("curriculum") and 0 <= self.curriculum <= 1, "curriculum", "must be in [0, 1]")

@@ -3,6 +3,7 @@ feed-forward laws of ``envs.feedforward`` aim at."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -26,6 +27,9 @@ class Track:
     """``(n,)`` path length from each of the guide's balls to the end."""
     cusp: int = 0
     """``points[: cusp + 1]`` are a reversing lead, driven backwards (0: none)."""
+    slack: np.ndarray | None = None
+    """``(m,)`` room between the robot and the obstacles at each point: their distance less the
+    robot's radius (None: not measured)."""
     neg_togo: np.ndarray = field(init=False, repr=False, compare=False)
     """``-togo`` (non-decreasing, for ``searchsorted``)."""
     _stretches: dict[int, Stretch] = field(
@@ -41,14 +45,25 @@ class Track:
         return cls(guide.centers, guide.dist_to_go, guide.dist_to_go)
 
     @classmethod
-    def dense(cls, points: np.ndarray, balls: int, cusp: int = 0) -> Track:
+    def dense(
+        cls, points: np.ndarray, balls: int, cusp: int = 0, slack: np.ndarray | None = None
+    ) -> Track:
         """``points``, a dense path whose ``balls`` marks evenly spaced along it are the
         guide's balls (``planner.geometry.drivable.thin``), driven backwards up to
-        ``points[cusp]`` (0: no reversing lead)."""
+        ``points[cusp]`` (0: no reversing lead), with the robot's ``slack`` at each point."""
         pts = np.asarray(points, dtype=float)
         along = arc_lengths(pts)
         total = float(along[-1])
-        return cls(pts, total - along, total - np.linspace(0.0, total, balls), cusp)
+        return cls(pts, total - along, total - np.linspace(0.0, total, balls), cusp, slack)
+
+    def least_slack(self, near: float, far: float) -> float:
+        """The least ``slack`` of the points from ``near`` down to ``far`` metres to go, or of
+        the point nearest to them (inf: not measured)."""
+        if self.slack is None:
+            return math.inf
+        lo = min(int(np.searchsorted(self.neg_togo, -near, side="left")), len(self.slack) - 1)
+        hi = int(np.searchsorted(self.neg_togo, -far, side="right"))
+        return float(self.slack[lo : max(hi, lo + 1)].min())
 
     @property
     def cusp_togo(self) -> float | None:

@@ -203,3 +203,63 @@ def test_the_pursuit_lookahead_is_set_in_turning_radii() -> None:
     with pytest.raises(EnvConfigError, match="> 0") as err:
         EnvOptions(pursuit_lookahead=0.0)
     assert err.value.field == "options.pursuit_lookahead"
+
+
+def test_the_least_slack_is_read_over_the_stretch_asked() -> None:
+    points = np.array([[0.1 * i, 0.0] for i in range(51)])  # 5 m east: 5 - x metres to go
+    slack = np.where((points[:, 0] >= 3.0) & (points[:, 0] <= 3.5), 0.05, 0.5)
+    track = Track.dense(points, 6, slack=slack)
+    assert track.least_slack(5.0, 2.1) == pytest.approx(0.5)  # x from 0 to 2.9
+    assert track.least_slack(5.0, 2.0) == pytest.approx(0.05)  # to 3.0
+    assert track.least_slack(1.8, 1.7) == pytest.approx(0.05)  # within
+    assert track.least_slack(1.4, 0.0) == pytest.approx(0.5)  # past it
+    assert Track.dense(points, 6).least_slack(5.0, 0.0) == np.inf
+
+
+def test_pursuit_takes_the_tight_lookahead_where_the_track_ahead_is_tight() -> None:
+    points = np.array([[0.05 * i, 1.0] for i in range(201)])  # 10 m east along y = 1
+    slack = np.where((points[:, 0] >= 5.0) & (points[:, 0] <= 5.5), 0.05, 0.5)
+    world = World(np.array([[0.0, 12.0], [0.0, 5.0]]), [], {})
+    robot = make_robot("racecar", world, RADIUS)
+    try:
+        rho = robot.params.min_turning_radius()
+        law = {"guide_feedforward": 1.0, "feedforward_law": "pursuit", "min_forward": 0.2}
+        usual = ActionShaping(robot, EnvOptions(**law))
+        tight = ActionShaping(robot, EnvOptions(**law, pursuit_tight_lookahead=0.5))
+        assert tight.ahead == usual.ahead == pytest.approx(PURSUIT_LOOKAHEAD * rho)
+        assert tight.tight_ahead == pytest.approx(0.5 * rho)
+
+        def turns(x: float) -> tuple[float, float]:
+            robot.reset(np.array([x, 0.8]), np.random.default_rng(0), heading=0.0)
+            track = Track.dense(points, 21, slack=slack)  # balls 0.5 m apart
+            zero, ball = np.zeros(2), int(x / 0.5)
+            return usual.apply(zero, track, ball)[1], tight.apply(zero, track, ball)[1]
+
+        # 0.2 m right of the track: a nearer point ahead turns back harder
+        near_usual, near_tight = turns(5.0 - 0.5 * PURSUIT_LOOKAHEAD * rho)
+        assert 0 < near_usual < near_tight
+        far_usual, far_tight = turns(5.0 - 1.5 * PURSUIT_LOOKAHEAD * rho)  # the door further
+        assert far_tight == pytest.approx(far_usual)
+        past_usual, past_tight = turns(6.0)
+        assert past_tight == pytest.approx(past_usual)
+    finally:
+        robot.close()
+    with pytest.raises(EnvConfigError, match="> 0") as err:
+        EnvOptions(pursuit_tight_lookahead=-1.0)
+    assert err.value.field == "options.pursuit_tight_lookahead"
+
+
+def test_a_redrawn_track_knows_the_room_around_it() -> None:
+    world, plan = lane()
+    env = make_env(
+        racecar_mission(), 1, "rrt", world=world, plan=plan, drivable_guide=FACTOR,
+        guide_feedforward=1.0, feedforward_law="pursuit",
+    )  # fmt: skip
+    try:
+        track = env.legs[0].track
+        assert track.slack is not None
+        expected = world.obstacle_distance(track.points) - RADIUS
+        np.testing.assert_allclose(track.slack, expected)
+        assert track.slack.min() >= -1e-9  # the redraw keeps at least the robot's radius
+    finally:
+        env.close()
