@@ -20,17 +20,18 @@ Johannink et al. 2019), instead of first having to discover motion at all.
 For robots with a minimum turning radius (racecar) ``EnvOptions.feedforward_law = "pursuit"``
 replaces that turn by pure pursuit (Coulter 1992): the target is the point ``PURSUIT_LOOKAHEAD``
 turning radii along the leg's :class:`Track` past the robot's projection on it, and the turn
-command is the curvature of the arc through it in units of the tightest curvature. On a guide
-the car can drive (``EnvOptions.drivable_guide``) the track is the dense redrawn path, and this
-tracks the loops and curves that the heading law, or pursuit of the chords between the balls,
-cuts. Where the track up to the target passes within ``TIGHT_SLACK`` turning radii of touching
-an obstacle (a narrow door), ``EnvOptions.pursuit_tight_lookahead`` radii replace the usual
-lookahead: pursuit begins a turn about a lookahead before the track does and cuts its inside,
-which a door leaves no room for. Along a redrawn path's reversing lead (a three-point turn, ``Track.cusp``) the law drives
+command is the curvature of the arc through it in units of the tightest curvature. On a guide the
+car can drive (``EnvOptions.drivable_guide``) the track is the dense redrawn path, and this tracks
+the loops and curves that the heading law, or pursuit of the chords between the balls, cuts. Where
+the track up to the target passes within ``TIGHT_SLACK`` turning radii of touching an obstacle (a
+narrow door), ``EnvOptions.pursuit_tight_lookahead`` radii replace the usual lookahead: pursuit
+begins a turn about a lookahead before the track does and cuts its inside, which a door leaves no
+room for. Along a redrawn path's reversing lead (a three-point turn, ``Track.cusp``) the law drives
 backwards, from entering the leg until the car's projection on the lead comes within
-``CUSP_REACHED`` of its end: the forward command negated, the target on the lead or, near its
-end, past the cusp along the lead's last direction (``envs.track.lead_target``), and the turn that of pursuit facing the other way, negated (a car backing up turns the other
-way). Past the cusp, the projection is kept off the lead.
+``CUSP_REACHED`` of its end: the forward command negated, the target on the lead or, near its end,
+past the cusp along the lead's last direction (``envs.track.lead_target``), and the turn that of
+pursuit facing the other way, negated (a car backing up turns the other way). Past the cusp, the
+projection is kept off the lead.
 """
 
 from __future__ import annotations
