@@ -217,8 +217,9 @@ class ActionShaping:
     def _lookahead(self, track: Track, on: float) -> float:
         """The pursuit law's lookahead from ``on`` metres to go on ``track``: the tight one
         where the track up to the usual target passes within ``TIGHT_SLACK`` of touching."""
-        tight = track.least_slack(on, on - self.ahead) < TIGHT_SLACK * self.pursuit
-        return self.tight_ahead if self.tight_ahead and tight else self.ahead
+        if self.tight_ahead and track.least_slack(on, on - self.ahead) < TIGHT_SLACK * self.pursuit:
+            return self.tight_ahead
+        return self.ahead
 
     def apply(self, action: np.ndarray, track: Track, index: int) -> np.ndarray:
         """``action``, validated (a bad action must not be mapped into the box and slip
