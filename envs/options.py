@@ -153,8 +153,13 @@ class EnvOptions:
         )
         need(integer("lookahead") and self.lookahead >= 0, "lookahead", "must be an integer >= 0")
         need(integer("rays") and self.rays >= 0, "rays", "must be an integer >= 0")
-        positive = ("lookahead_range", "ray_range", "r_ball", "pursuit_lookahead")
-        for name in (*positive, "pursuit_tight_lookahead"):
+        for name in (
+            "lookahead_range",
+            "ray_range",
+            "r_ball",
+            "pursuit_lookahead",
+            "pursuit_tight_lookahead",
+        ):
             value = getattr(self, name)
             need(value is None or (number(name) and value > 0), name, "must be > 0")
         need(number("curriculum") and 0 <= self.curriculum <= 1, "curriculum", "must be in [0, 1]")
