@@ -36,10 +36,20 @@ CACHE_SIZE = 16
 _cache: OrderedDict[tuple[Any, ...], tuple[World, list[SubTask]]] = OrderedDict()
 
 
-def clearances(radius: float, planned: float) -> list[float]:
-    """Clearances to redraw at, largest first: the plan's (radius plus margin), halfway to the
-    robot's radius, the radius."""
-    return sorted({planned, 0.5 * (planned + radius), radius}, reverse=True)
+CLEARANCE_SHARES = (1.0, 0.5, 0.25, 0.125, 0.0)
+"""The redraw's clearances: the robot's radius plus these shares of the room the plan sought
+beyond it. Each halving of the room is a step down, which costs a piece
+``planner.geometry.drivable.TIGHT_COST`` times its length more: halving down to an eighth, a
+door that leaves the car a few centimetres a side still tells the piece through its middle from
+one that grazes a jamb."""
+
+
+def clearances(radius: float, planned: float, sought: float | None = None) -> list[float]:
+    """Clearances to redraw at, largest first: ``CLEARANCE_SHARES`` of the way from the robot's
+    ``radius`` to what the plan sought (``sought``, the radius plus the whole margin, where the
+    plan fell back to less; else the plan's own clearance ``planned``)."""
+    top = max(planned, sought if sought is not None else planned, radius)
+    return sorted({radius + share * (top - radius) for share in CLEARANCE_SHARES}, reverse=True)
 
 
 def redraw_course(

@@ -180,7 +180,7 @@ def course(
     rho = _turning_radius(opts, spec)
     if rho > 0:
         planned = plan.clearance if plan is not None else spec.radius
-        steps = clearances(spec.radius, max(planned, spec.radius))
+        steps = clearances(spec.radius, planned, plan.hold if plan is not None else None)
         pool = redraw_course(world, pool, opening, rho, steps)
         subtasks = pool if whole_lasso else [pool[chosen or 0]]
     legs = build_course(

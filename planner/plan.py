@@ -50,7 +50,8 @@ class MissionPlan:
     guide balls and ``eta`` the steering step used. ``seconds`` covers the whole pipeline,
     ``translation_seconds`` parsing, translation and pruning (pruning alone when the automaton
     was given). ``clearance`` is the distance the lasso keeps from obstacles (the robot radius,
-    plus the planner margin when it fit).
+    plus the planner margin when it fit) and ``hold`` the distance it was pushed to wherever the
+    free space leaves room (the radius plus the whole margin; at least ``clearance``).
     """
 
     formula: str
@@ -64,6 +65,7 @@ class MissionPlan:
     seconds: float
     translation_seconds: float
     clearance: float = 0.0
+    hold: float = 0.0
 
     def to_json(self) -> dict[str, Any]:
         """The plan document of the ``ltlnav plan --json`` output (issue section 6)."""
@@ -193,6 +195,7 @@ def _plan(
         seconds=time.process_time() - t0,
         translation_seconds=t_translate,
         clearance=clearance,
+        hold=max(hold, clearance),
     )
 
 

@@ -89,6 +89,7 @@ def plan_to_dict(plan: MissionPlan) -> dict[str, Any]:
         "seconds": plan.seconds,
         "translation_seconds": plan.translation_seconds,
         "clearance": plan.clearance,
+        "hold": plan.hold,
     }
 
 
@@ -126,4 +127,5 @@ def plan_from_dict(doc: dict[str, Any]) -> MissionPlan:
         seconds=float(doc["seconds"]),
         translation_seconds=float(doc["translation_seconds"]),
         clearance=float(doc.get("clearance", 0.0)),
+        hold=float(doc.get("hold", doc.get("clearance", 0.0))),
     )

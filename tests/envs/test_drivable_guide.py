@@ -249,6 +249,14 @@ def test_pursuit_takes_the_tight_lookahead_where_the_track_ahead_is_tight() -> N
     assert err.value.field == "options.pursuit_tight_lookahead"
 
 
+def test_the_redraw_steps_down_from_what_the_plan_sought_halving_the_room() -> None:
+    assert clearances(0.3, 0.6) == pytest.approx([0.6, 0.45, 0.375, 0.3375, 0.3])
+    # a plan that fell back to the radius (a narrow door) still seeks room where there is some
+    assert clearances(0.3, 0.3, 0.6) == pytest.approx([0.6, 0.45, 0.375, 0.3375, 0.3])
+    assert clearances(0.3, 0.45, 0.6) == pytest.approx([0.6, 0.45, 0.375, 0.3375, 0.3])
+    assert clearances(0.3, 0.3) == [0.3]
+
+
 def test_a_redrawn_track_knows_the_room_around_it() -> None:
     world, plan = lane()
     env = make_env(

@@ -139,6 +139,24 @@ def test_a_tight_spot_lowers_the_clearance_there_alone() -> None:
     np.testing.assert_allclose(mixed.points[-1], [10.5, 11.0])
 
 
+def test_a_door_with_centimetres_a_side_is_passed_through_its_middle() -> None:
+    """A 0.8 m door in a wall, met at a slant, for a car of radius 0.3 m: with the clearances
+    0.6, 0.45 and 0.3 m the piece through the door grazes a jamb (the door fits neither of the
+    first two); with the finer steps of ``envs.drivable.clearances`` it keeps 0.09 m a side."""
+    wall = [
+        Box(np.array([0.0, 4.4]), np.array([4.05, 4.6])),
+        Box(np.array([4.85, 4.4]), np.array([10.0, 4.6])),
+    ]
+    world = World(np.array([[0.0, 10.0], [0.0, 9.0]]), wall, {})
+    poly = np.array([[7.0, 3.2], [4.6, 3.8], [4.45, 3.9], [4.45, 5.1], [8.0, 8.0]])
+    start = Pose(poly[0], math.atan2(0.6, -2.4))
+    coarse = drivable_path(world, poly, start, rho=0.9, clearance=0.6, fallback=(0.45, 0.3))
+    fine = drivable_path(world, poly, start, 0.9, 0.6, fallback=(0.45, 0.375, 0.3375, 0.3))
+    assert coarse is not None and fine is not None
+    assert world.obstacle_distance(coarse.points).min() < 0.33
+    assert world.obstacle_distance(fine.points).min() >= 0.3375
+
+
 def test_no_room_to_turn_gives_none() -> None:
     narrow = World(np.array([[-2.0, 12.0], [1.0, 3.0]]), [], {})
     assert (

@@ -106,11 +106,12 @@ def test_margin_keeps_the_guide_off_obstacles_and_falls_back_where_too_narrow() 
     task = "<>l1 && []<>(l2 && <>l3) && (!l3 U l4) && []!l5"
     opts = PlannerSpec(seed=1, refine_seconds=0.1, margin=0.01)
     plan = plan_mission(world, task, START, 0.02, opts)
-    assert plan.clearance == pytest.approx(0.03)
+    assert plan.clearance == pytest.approx(0.03) and plan.hold == pytest.approx(0.03)
     assert verify_plan(plan, world, 0.03) == []
     # a margin wider than every passage: the plan keeps the radius alone
     wide = plan_mission(world, task, START, 0.02, opts.model_copy(update={"margin": 5.0}))
     assert wide.clearance == pytest.approx(0.02)
+    assert wide.hold == pytest.approx(5.02)  # what the plan sought where there is room
     assert verify_plan(wide, world, 0.02) == []
 
 
@@ -126,7 +127,7 @@ def test_a_door_too_narrow_for_the_margin_keeps_half_of_it() -> None:
     )
     opts = PlannerSpec(seed=0, refine_iterations=200, margin=0.3)
     plan = plan_mission(world, "<>(left && <>right)", np.array([2.0, 1.0]), 0.1, opts)
-    assert plan.clearance == pytest.approx(0.25)
+    assert plan.clearance == pytest.approx(0.25) and plan.hold == pytest.approx(0.4)
     assert verify_plan(plan, world, 0.25) == []
 
 
