@@ -8,7 +8,9 @@ chain of Dubins paths (:mod:`planner.geometry.dubins`) through waypoints taken a
 polyline (one every ``spacing``, and every corner, each facing along the polyline), choosing by
 dynamic programming the shortest chain that ends at the polyline's last point. Each Dubins piece
 must keep ``clearance`` from the obstacles and the bounds, and may meet only regions the
-polyline (or the start) already meets, so the redrawn path produces no label the plan did not. A
+polyline (or the start) already meets, so the redrawn path produces no label the plan did not;
+keeping a clearance, it keeps what that clearance adds to the last one (the robot's radius)
+from the other regions too, so that a car following it does not stray into one. A
 U-turn becomes a loop of radius ``rho`` wherever there is room for one; where there is none at
 the start, the car first drives off to a pose nearby from which it can join the polyline, and
 where it cannot drive off forwards (a wall just ahead, facing away from the polyline), it backs
@@ -99,10 +101,14 @@ def waypoints(path: np.ndarray, spacing: float) -> list[Waypoint]:
 
 
 class _Checker:
-    """Whether a Dubins piece keeps clear of obstacles and bounds and meets only allowed regions."""
+    """Whether a Dubins piece keeps ``clearance`` from obstacles and bounds and meets only
+    allowed regions, keeping ``region_margin`` from the others."""
 
-    def __init__(self, world: World, clearance: float, allowed: np.ndarray) -> None:
+    def __init__(
+        self, world: World, clearance: float, allowed: np.ndarray, region_margin: float = 0.0
+    ) -> None:
         self.world, self.clearance, self.forbidden = world, clearance, ~allowed
+        self.region_margin = region_margin
 
     def points(self, piece: DubinsPath) -> np.ndarray | None:
         """The piece's points when it is drivable, else None."""
@@ -114,10 +120,11 @@ class _Checker:
         return bool(np.all(self.world.segments_free(pts[:-1], pts[1:], self.clearance)))
 
     def allowed(self, pts: np.ndarray) -> bool:
-        """Whether ``pts`` meet only allowed regions."""
-        return not (
-            self.forbidden.any() and np.any(self.world.label_matrix(pts)[:, self.forbidden])
-        )
+        """Whether ``pts`` meet only allowed regions, ``region_margin`` off the others."""
+        if not self.forbidden.any():
+            return True
+        met = self.world.label_matrix(pts, self.region_margin)
+        return not np.any(met[:, self.forbidden])
 
 
 def allowed_regions(world: World, path: np.ndarray, start: np.ndarray) -> np.ndarray:
@@ -147,8 +154,10 @@ def drivable_path(
     ``fallback``: smaller clearances, largest first, that a piece may keep where none keeps
     ``clearance`` (each step down costs ``TIGHT_COST`` times the piece's length more), so that
     one tight spot, such as a turn-around at the start, does not bring the whole path down to
-    its clearance. ``spacing`` (default ``rho``) is the waypoint spacing along the polyline and
-    ``reach`` (default ``6 rho``) the longest stretch of polyline one piece may replace."""
+    its clearance. A piece keeps a clearance only if it also keeps what that adds to the last
+    one from the regions it may not meet. ``spacing`` (default ``rho``) is the waypoint spacing
+    along the polyline and ``reach`` (default ``6 rho``) the longest stretch of polyline one
+    piece may replace."""
     if world.dim != 2:
         raise ValueError("drivable paths are planar: the world must be 2D")
     levels = [clearance, *fallback]
@@ -158,7 +167,7 @@ def drivable_path(
     nodes = waypoints(poly, spacing or rho)
     span = reach if reach is not None else 6.0 * rho
     allowed = allowed_regions(world, poly, np.asarray(start.position, dtype=float))
-    checkers = [_Checker(world, c, allowed) for c in levels]
+    checkers = [_Checker(world, c, allowed, c - levels[-1]) for c in levels]
     count = len(nodes)
     cost = [math.inf] * count
     parent = [-2] * count
@@ -217,11 +226,11 @@ def drivable_path(
 
 def _drawn(checkers: Sequence[_Checker], piece: DubinsPath) -> tuple[np.ndarray, int] | None:
     """The piece's points and the first of ``checkers`` (one world, regions and clearances
-    largest first) whose clearance it keeps (None: none, or a forbidden region)."""
+    largest first) whose clearances it keeps (None: none, or a forbidden region)."""
     pts, _ = piece.sample(STEP)
-    if not checkers[0].allowed(pts):
+    if not checkers[-1].allowed(pts):
         return None
-    level = next((k for k, checker in enumerate(checkers) if checker.clear(pts)), None)
+    level = next((k for k, c in enumerate(checkers) if c.clear(pts) and c.allowed(pts)), None)
     return None if level is None else (pts, level)
 
 

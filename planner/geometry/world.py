@@ -235,9 +235,10 @@ class World:
             return names | {self.OBSTACLE}
         return names
 
-    def label_matrix(self, points: Any) -> BoolArray:
-        """(n, len(region_names)) membership of each point in each region (no obstacle column)."""
-        return self._reg.contains(as_points(points, self.dim), 0.0)
+    def label_matrix(self, points: Any, margin: float = 0.0) -> BoolArray:
+        """(n, len(region_names)) membership of each point in each region (no obstacle column),
+        each region grown by ``margin``."""
+        return self._reg.contains(as_points(points, self.dim), margin)
 
     def in_collision(self, points: Any, clearance: float = 0.0) -> BoolArray:
         """(n,) points within ``clearance`` of an obstacle or of the bounds (or outside them)."""

@@ -157,6 +157,20 @@ def test_a_door_with_centimetres_a_side_is_passed_through_its_middle() -> None:
     assert world.obstacle_distance(fine.points).min() >= 0.3375
 
 
+def test_a_region_the_plan_passes_close_by_is_kept_off_as_obstacles_are() -> None:
+    """The lane passes 0.1 m from a region it may not meet: at the robot's radius alone the
+    redraw keeps that; with room to spare it keeps what its clearance adds to the radius from
+    the region too (a car following it within 0.1 m would stray in)."""
+    near = Ball(np.array([6.0, 3.1]), 1.0)
+    world = World(np.array([[0.0, 12.0], [-2.0, 6.0]]), [], {"near": near})
+    start = Pose(LANE[0], 0.0)
+    tight = drivable_path(world, LANE, start, rho=1.0, clearance=0.3)
+    roomy = drivable_path(world, LANE, start, 1.0, 0.6, fallback=(0.45, 0.375, 0.3375, 0.3))
+    assert tight is not None and roomy is not None
+    assert np.linalg.norm(tight.points - near.center, axis=1).min() - near.radius < 0.11
+    assert np.linalg.norm(roomy.points - near.center, axis=1).min() - near.radius >= 0.3
+
+
 def test_no_room_to_turn_gives_none() -> None:
     narrow = World(np.array([[-2.0, 12.0], [1.0, 3.0]]), [], {})
     assert (
