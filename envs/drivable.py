@@ -48,7 +48,7 @@ def clearances(radius: float, planned: float, sought: float | None = None) -> li
     """Clearances to redraw at, largest first: ``CLEARANCE_SHARES`` of the way from the robot's
     ``radius`` to what the plan sought (``sought``, the radius plus the whole margin, where the
     plan fell back to less; else the plan's own clearance ``planned``)."""
-    top = max(planned, sought if sought is not None else planned, radius)
+    top = max(radius, planned, sought or 0.0)
     return sorted({radius + share * (top - radius) for share in CLEARANCE_SHARES}, reverse=True)
 
 

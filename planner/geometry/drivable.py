@@ -230,7 +230,7 @@ def _drawn(checkers: Sequence[_Checker], piece: DubinsPath) -> tuple[np.ndarray,
     pts, _ = piece.sample(STEP)
     if not checkers[-1].allowed(pts):
         return None
-    level = next((k for k, c in enumerate(checkers) if c.clear(pts) and c.allowed(pts)), None)
+    level = next((k for k, c in enumerate(checkers) if c.allowed(pts) and c.clear(pts)), None)
     return None if level is None else (pts, level)
 
 
