@@ -21,6 +21,7 @@ from __future__ import annotations
 import io
 import json
 import re
+import warnings
 import zipfile
 from pathlib import Path, PurePosixPath
 from typing import Any
@@ -32,6 +33,7 @@ from stable_baselines3 import DDPG, PPO, SAC, TD3
 from stable_baselines3.common.policies import BasePolicy
 
 from envs.errors import EnvConfigError
+from envs.factory import subtask_guides
 from envs.mission_env import MissionEnv
 from envs.options import EnvOptions
 from planner.decompose import subtask_at
@@ -215,16 +217,39 @@ class ConcatenatedPolicy:
                 EnvOptions(**manifest.eval_env)
             except (EnvConfigError, TypeError) as err:
                 raise BundleError(f"{path}: invalid eval_env in the manifest: {err}") from err
-        return cls(manifest, mission, plan, models)
+        policy = cls(manifest, mission, plan, models)
+        redrawn = policy.redrawn_subtasks()
+        if redrawn:
+            warnings.warn(
+                f"{path}: this ltlnav draws the guides of sub-tasks {redrawn} differently from "
+                "those they were trained on (the bundle predates a change to how guides are "
+                "drawn); its rollouts follow today's guides",
+                stacklevel=2,
+            )
+        return policy
+
+    def options(self) -> EnvOptions:
+        """The evaluation env's options: the recorded ones (bundles written before they were
+        recorded: the mission's defaults of this ltlnav)."""
+        recorded = self.manifest.eval_env
+        if recorded is not None:
+            return EnvOptions(**recorded)
+        return self.mission.training.eval_env_options(self.mission.robot.model)
+
+    def redrawn_subtasks(self) -> list[int]:
+        """Sub-tasks whose guide this ltlnav draws otherwise than the manifest's (the one their
+        policy was trained on)."""
+        guides = subtask_guides(self.mission, self.plan, self.options(), self.mission.build_world())
+        return [
+            entry.index
+            for entry, guide in zip(self.manifest.subtasks, guides, strict=True)
+            if np.shape(entry.guide_centers) != guide.centers.shape
+            or not np.allclose(entry.guide_centers, guide.centers, rtol=0.0, atol=1e-9)
+        ]
 
     def make_env(self, cycles: int | None = None) -> MissionEnv:
         """The mission env this policy acts in (``cycles`` suffix cycles, default the bundle's)."""
-        recorded = self.manifest.eval_env
-        if recorded is not None:
-            options = EnvOptions(**recorded)
-        else:
-            options = self.mission.training.eval_env_options(self.mission.robot.model)
-        return MissionEnv(self.mission, self.plan, options, cycles or self.cycles)
+        return MissionEnv(self.mission, self.plan, self.options(), cycles or self.cycles)
 
     def subtask_of(self, stage: int) -> int:
         """The sub-task that acts at ``stage`` (the suffix repeats forever)."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import json
+import warnings
 import zipfile
 from collections.abc import Callable
 from pathlib import Path
@@ -348,3 +349,25 @@ def test_policies_act_under_the_recorded_env_options(
     older = {k: v for k, v in manifest.items() if k != "eval_env"}
     legacy = rewrite(bundle, tmp_path / "j.zip", {"manifest.json": json.dumps(older).encode()})
     ConcatenatedPolicy.load(legacy).close()  # bundles written before the field still load
+
+
+def test_a_bundle_whose_guides_this_ltlnav_draws_otherwise_says_so(
+    trained: tuple[MissionSpec, MissionPlan, list[TrainResult], Path], tmp_path: Path
+) -> None:
+    """A bundle trained before a change to how guides are drawn still loads, and its load
+    names the sub-tasks whose guide its rollouts will follow differently; a bundle of today's
+    code names none."""
+    *_, bundle = trained
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)
+        policy = ConcatenatedPolicy.load(bundle)
+    assert policy.redrawn_subtasks() == []
+    policy.close()
+    with zipfile.ZipFile(bundle) as archive:
+        manifest = json.loads(archive.read("manifest.json"))
+    moved = [[x + 0.05 for x in c] for c in manifest["subtasks"][1]["guide_centers"]]
+    manifest["subtasks"][1]["guide_centers"] = moved
+    older = rewrite(bundle, tmp_path / "k.zip", {"manifest.json": json.dumps(manifest).encode()})
+    with pytest.warns(UserWarning, match=r"sub-tasks \[1\] differently"):
+        policy = ConcatenatedPolicy.load(older)
+    policy.close()
