@@ -44,11 +44,11 @@ door that leaves the car a few centimetres a side still tells the piece through 
 one that grazes a jamb."""
 
 
-def clearances(radius: float, planned: float, sought: float | None = None) -> list[float]:
+def clearances(radius: float, sought: float) -> list[float]:
     """Clearances to redraw at, largest first: ``CLEARANCE_SHARES`` of the way from the robot's
-    ``radius`` to what the plan sought (``sought``, the radius plus the whole margin, where the
-    plan fell back to less; else the plan's own clearance ``planned``)."""
-    top = max(radius, planned, sought or 0.0)
+    ``radius`` to what the plan ``sought`` (its ``hold``: the radius plus the whole margin, even
+    where it fell back to less)."""
+    top = max(radius, sought)
     return sorted({radius + share * (top - radius) for share in CLEARANCE_SHARES}, reverse=True)
 
 

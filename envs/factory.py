@@ -179,8 +179,7 @@ def course(
     opening = opening_pose(pool, start, given)
     rho = _turning_radius(opts, spec)
     if rho > 0:
-        planned = plan.clearance if plan is not None else spec.radius
-        steps = clearances(spec.radius, planned, plan.hold if plan is not None else None)
+        steps = clearances(spec.radius, plan.hold if plan is not None else spec.radius)
         pool = redraw_course(world, pool, opening, rho, steps)
         subtasks = pool if whole_lasso else [pool[chosen or 0]]
     legs = build_course(

@@ -67,6 +67,9 @@ class MissionPlan:
     clearance: float = 0.0
     hold: float = 0.0
 
+    def __post_init__(self) -> None:
+        self.hold = max(self.hold, self.clearance)
+
     def to_json(self) -> dict[str, Any]:
         """The plan document of the ``ltlnav plan --json`` output (issue section 6)."""
         return {
@@ -195,7 +198,7 @@ def _plan(
         seconds=time.process_time() - t0,
         translation_seconds=t_translate,
         clearance=clearance,
-        hold=max(hold, clearance),
+        hold=hold,
     )
 
 

@@ -7,6 +7,7 @@ racecar (turning radius 0.62 m) can only make on a loop.
 
 from __future__ import annotations
 
+import dataclasses
 from functools import cache
 
 import numpy as np
@@ -56,7 +57,7 @@ def racecar_mission(model: str = "racecar") -> Mission:
 def course() -> list:  # type: ignore[type-arg]
     world, plan = lane()
     rho = FACTOR * robot_params("racecar").min_turning_radius()
-    steps = clearances(RADIUS, plan.clearance)
+    steps = clearances(RADIUS, plan.hold)
     return redraw_course(world, plan.subtasks, Pose(np.array(START[:2]), 0.0), rho, steps)
 
 
@@ -252,8 +253,9 @@ def test_pursuit_takes_the_tight_lookahead_where_the_track_ahead_is_tight() -> N
 def test_the_redraw_steps_down_from_what_the_plan_sought_halving_the_room() -> None:
     assert clearances(0.3, 0.6) == pytest.approx([0.6, 0.45, 0.375, 0.3375, 0.3])
     # a plan that fell back to the radius (a narrow door) still seeks room where there is some
-    assert clearances(0.3, 0.3, 0.6) == pytest.approx([0.6, 0.45, 0.375, 0.3375, 0.3])
-    assert clearances(0.3, 0.45, 0.6) == pytest.approx([0.6, 0.45, 0.375, 0.3375, 0.3])
+    fallen = dataclasses.replace(lane()[1], clearance=0.3, hold=0.6)
+    assert clearances(0.3, fallen.hold) == pytest.approx([0.6, 0.45, 0.375, 0.3375, 0.3])
+    assert dataclasses.replace(fallen, hold=0.0).hold == 0.3  # never less than it keeps
     assert clearances(0.3, 0.3) == [0.3]
 
 

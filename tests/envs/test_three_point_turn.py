@@ -45,7 +45,7 @@ def lane() -> tuple[World, MissionPlan]:
 def test_the_guide_backs_into_the_hall_before_it_drives_to_the_goal() -> None:
     world, plan = lane()
     rho = FACTOR * robot_params("racecar").min_turning_radius()
-    steps = clearances(RADIUS, plan.clearance)
+    steps = clearances(RADIUS, plan.hold)
     (drawn,) = redraw_course(world, plan.subtasks, Pose(np.array(START[:2]), math.pi), rho, steps)
     assert drawn.reverse > 0
     lead = drawn.path[: drawn.reverse + 1]
