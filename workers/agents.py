@@ -22,6 +22,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from planner.errors import LtlnavError
 from workers.callbacks import ResumableEvalCallback
 from workers.checkpoints import checkpoints
+from workers.hyperparameters import OFF_POLICY_TRAIN_FREQ
 from workers.residual import zero_output_layer
 from workers.training_spec import TrainingSpec
 
@@ -56,14 +57,6 @@ ACTIVATION_MODULES: dict[str, type[torch.nn.Module]] = {
 }
 
 
-OFF_POLICY_TRAIN_FREQ = 2
-"""Env steps between gradient steps of the off-policy agents unless ``hyperparams.train_freq``
-is given (SB3's default: 1): half the updates per env step. Measured side by side with the
-default before it (``bench/train_speed.py``, the car mission, 3 seeds, with evaluation lanes):
-wall time to the bundle 144 / 172 / 366 s against 526 / 574 / 780 s, every sub-task at the
-target in as many env steps or fewer, missions 99 / 100 / 100 % against 100 / 100 / 100 %."""
-
-
 class TrainingError(LtlnavError):
     """A training job that cannot run as asked (bad sub-task index, unusable plan)."""
 
@@ -83,7 +76,8 @@ no ``data`` entry, which SB3 reports with an ``assert`` (AssertionError)."""
 
 
 def hyperparameters(training: TrainingSpec, action_dim: int) -> dict[str, Any]:
-    """The SB3 constructor keywords of ``training.hyperparams`` (RL-Zoo names mapped)."""
+    """The SB3 constructor keywords of ``training.hyperparams`` (RL-Zoo names mapped); an
+    off-policy ``train_freq`` counts the steps of one env, SB3's those of ``n_envs`` at once."""
     params = {k: v for k, v in training.hyperparams.items() if k not in ("noise_type", "noise_std")}
     if training.algorithm != "ppo":
         if "buffer_size" not in params:
@@ -94,8 +88,11 @@ def hyperparameters(training: TrainingSpec, action_dim: int) -> dict[str, Any]:
     kwargs = training.policy_kwargs()
     kwargs["activation_fn"] = ACTIVATION_MODULES[kwargs["activation_fn"]]
     params["policy_kwargs"] = kwargs
-    if isinstance(params.get("train_freq"), list):
-        params["train_freq"] = (int(params["train_freq"][0]), str(params["train_freq"][1]))
+    freq = params.get("train_freq")
+    if isinstance(freq, list):
+        freq = params["train_freq"] = (int(freq[0]), str(freq[1]))
+    if training.n_envs > 1 and freq is not None:  # a multiple of it in steps (TrainingSpec)
+        params["train_freq"] = (freq if isinstance(freq, int) else freq[0]) // training.n_envs
     noise = training.hyperparams.get("noise_type")
     if noise is not None:
         std = float(training.hyperparams.get("noise_std", 0.1))
@@ -129,6 +126,7 @@ def load_agent(
             # a checkpoint cut short by the kill that restarted this job: use an older one
             warnings.warn(f"skipping unreadable checkpoint {path.name}: {err}", stacklevel=2)
             continue
+        _check_env_count(model, env, path)
         model.num_timesteps = steps
         return model, steps
     shape = env.action_space.shape
@@ -149,8 +147,22 @@ def _warm_agent(cls: type[BaseAlgorithm], env: DummyVecEnv, warm: Path, seed: in
     buffers = [b for _, b, _ in checkpoints(warm / "checkpoints") if b is not None]
     if buffers and isinstance(model, OffPolicyAlgorithm):
         model.load_replay_buffer(buffers[0])
+    _check_env_count(model, env, policy)
     model.num_timesteps = 0
     return model
+
+
+def _check_env_count(model: BaseAlgorithm, env: DummyVecEnv, path: Path) -> None:
+    """Refuse an off-policy agent whose replay buffer holds another number of envs than
+    ``env`` (its transitions are stored per env, and its ``train_freq`` counts their steps)."""
+    if not isinstance(model, OffPolicyAlgorithm) or model.replay_buffer is None:
+        return
+    had = model.replay_buffer.n_envs
+    if had != env.num_envs:
+        raise TrainingError(
+            f"{path} was trained with {had} env(s) per learner and training.n_envs is now "
+            f"{env.num_envs}: set n_envs back to {had} or train into a new folder"
+        )
 
 
 def keep_best_policy(

@@ -230,7 +230,7 @@ class _SubtaskTraining:
         def env(evaluation: bool) -> NavEnv:
             return subtask_env(mission, plan, training, k, evaluation, starts)
 
-        self.env = DummyVecEnv([lambda: Monitor(env(False))])
+        self.env = DummyVecEnv([lambda: Monitor(env(False))] * training.n_envs)
         self.env.seed(job.seed)
         self.eval_env = DummyVecEnv([lambda: Monitor(env(True))] * training.eval_lanes)
         seed_lanes(self.eval_env.envs, job.seed + PERIODIC_SEED)
@@ -289,7 +289,7 @@ class _SubtaskTraining:
         evaluation = ResumableEvalCallback(
             self.eval_env,
             n_eval_episodes=training.eval_episodes,
-            eval_freq=training.eval_freq,
+            eval_freq=training.eval_freq // training.n_envs,  # in steps of all the envs
             log_path=str(self.out),
             best_model_save_path=None,
             deterministic=True,
@@ -303,7 +303,7 @@ class _SubtaskTraining:
         evaluation.restore(self.resumed)
         if start is not None:
             evaluation.offer(model, 0, start.success_rate)
-        every = training.checkpoint_freq or training.eval_freq
+        every = (training.checkpoint_freq or training.eval_freq) // training.n_envs
         cancel = StopOnRequest(hooks.should_stop)
         checkpointer = ReportedCheckpoints(every, self.folder, hooks)
         plateau = StopOnPlateau(evaluation, training.plateau_evals, training.plateau_from)

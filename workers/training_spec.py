@@ -32,6 +32,7 @@ from workers.hyperparameters import (
     DEFAULT_POLICY_KWARGS,
     HYPERPARAMETERS,
     backend_problems,
+    env_count_problems,
     policy_kwargs_problems,
 )
 
@@ -259,6 +260,15 @@ class TrainingSpec(BaseModel):
     torch_threads: int = Field(
         1, ge=1, description="torch threads per job (more is slower on a shared machine)."
     )
+    n_envs: int = Field(
+        1,
+        ge=1,
+        le=16,
+        description="Copies of the training env one learner steps in turn, one batched policy "
+        "call for all (a DummyVecEnv in the job's process). Off-policy agents keep their "
+        "gradient steps per env step: train_freq, eval_freq and checkpoint_freq must be "
+        "multiples of it.",
+    )
     backend: Backend = Field(
         "sb3",
         description="Learner: 'sb3' (stable-baselines3, default) or 'sbx' (SBX: SAC on JAX, "
@@ -323,6 +333,8 @@ class TrainingSpec(BaseModel):
     @model_validator(mode="after")
     def _backend(self) -> TrainingSpec:
         raise_problems(backend_problems(self.backend, self.algorithm, self.hyperparams))
+        counts = {"eval_freq": self.eval_freq, "checkpoint_freq": self.checkpoint_freq}
+        raise_problems(env_count_problems(self.n_envs, self.algorithm, self.hyperparams, counts))
         return self
 
     def env_options(self, model: str, **overrides: Any) -> EnvOptions:
