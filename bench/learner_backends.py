@@ -86,7 +86,9 @@ def rates(name: str, steps: int, repeats: int, lanes: list[int]) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--missions", nargs="*", default=["car-phi2-fin", "racecar-dense-forest"])
+    parser.add_argument(
+        "--missions", nargs="*", default=["car-phi2-fin", "racecar-dense-forest-15"]
+    )
     parser.add_argument("--steps", type=int, default=4_000, help="timed SAC steps per run")
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument(
