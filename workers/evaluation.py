@@ -93,13 +93,15 @@ def run_lanes(
     ended: Callable[[gym.Env[Any, Any], dict[str, Any], int], None],
     reset: Callable[[np.ndarray], None] | None = None,
     share: LaneShare | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> None:
     """Run ``episodes`` episodes of ``act`` on one env, or on lanes in lockstep (``act`` then
     gets the batch of the running lanes' observations, one row per lane, and returns one action
     per row). Lane ``j`` is seeded once with ``lane_seed(seed, j)`` and runs
     ``(episodes + j) // lanes`` episodes one after another; with ``share`` the envs are that
     share's lanes of a larger evaluation (``LaneShare``). ``ended(env, info, steps)`` hears
-    every episode's end before its env is reset; ``reset(obs)`` every start."""
+    every episode's end before its env is reset; ``reset(obs)`` every start. ``stop()``, asked
+    after every episode's end, ends the run there (the other lanes' episodes are dropped)."""
     batched = not isinstance(envs, gym.Env)
     lanes: list[gym.Env[Any, Any]] = [envs] if isinstance(envs, gym.Env) else list(envs)
     if share is None:
@@ -127,6 +129,8 @@ def run_lanes(
                 still.append(j)
                 continue
             ended(lanes[j], info, steps[j])
+            if stop is not None and stop():
+                return
             steps[j], left[j] = 0, left[j] - 1
             if left[j]:
                 obs[j], _ = lanes[j].reset()
@@ -136,9 +140,13 @@ def run_lanes(
         running = still
 
 
-def evaluate_subtask(act: Act, envs: Lanes, episodes: int, seed: int) -> SubtaskEvaluation:
+def evaluate_subtask(
+    act: Act, envs: Lanes, episodes: int, seed: int, needed: int = 0
+) -> SubtaskEvaluation:
     """Run ``act`` for ``episodes`` episodes of one sub-task env, or of its lanes
-    (``run_lanes``)."""
+    (``run_lanes``). With ``needed``, stop as soon as fewer than ``needed`` successes can still
+    be reached: the evaluation's ``episodes`` are then those run, and its rates are over them
+    (below ``needed / episodes`` whatever the rest would have given)."""
     outcomes = {"success": 0, "collision": 0, "timeout": 0, "rejected": 0}
     goal_steps: list[int] = []
 
@@ -148,14 +156,18 @@ def evaluate_subtask(act: Act, envs: Lanes, episodes: int, seed: int) -> Subtask
         if outcome == "success":
             goal_steps.append(steps)
 
-    run_lanes(act, envs, episodes, seed, ended)
+    def out_of_reach() -> bool:
+        return sum(outcomes.values()) - outcomes["success"] > episodes - needed
+
+    run_lanes(act, envs, episodes, seed, ended, stop=out_of_reach if needed else None)
+    ran = sum(outcomes.values())
     return SubtaskEvaluation(
-        episodes=episodes,
-        success_rate=outcomes["success"] / episodes,
-        collision_rate=outcomes["collision"] / episodes,
-        timeout_rate=outcomes["timeout"] / episodes,
+        episodes=ran,
+        success_rate=outcomes["success"] / ran,
+        collision_rate=outcomes["collision"] / ran,
+        timeout_rate=outcomes["timeout"] / ran,
         mean_steps_to_goal=float(np.mean(goal_steps)) if goal_steps else None,
-        rejected_rate=outcomes["rejected"] / episodes,
+        rejected_rate=outcomes["rejected"] / ran,
     )
 
 

@@ -61,8 +61,13 @@ RESULT = "result.json"
 """A finished job's ``TrainResult`` in its folder."""
 
 CONFIRMATIONS = "confirmations.json"
-"""Every confirmation of the early stop so far, ``[[steps, success rate], ...]``: a resumed job
-goes on with the next confirmation seed."""
+"""Every confirmation of the early stop so far, ``[[steps, success rate, episodes], ...]``: a
+resumed job goes on with the next confirmation seed."""
+
+Confirmation = tuple[int, float, int | None]
+"""``(steps, success rate, episodes)`` of a confirmation of the early stop. One that can no
+longer reach the target stops there: its rate is over the episodes it ran (None: recorded
+before confirmations stopped early, all ``final_eval_episodes``)."""
 
 PERIODIC_SEED, REPORT_SEED, CONFIRMATION_SEED = 1, 2, 3
 """Offsets from a job's seed of its evaluations' seeds. The periodic evaluations (and the start
@@ -93,10 +98,10 @@ class TrainResult:
     curve: list[tuple[int, float]] = field(default_factory=list)
     """``(steps, success rate)`` of every periodic evaluation (and of the start check at step 0
     of a residual agent, ``workers.residual``)."""
-    confirmations: list[tuple[int, float]] = field(default_factory=list)
-    """``(steps, success rate)`` of every confirmation of the early stop (``final_eval_episodes``
-    each, seeds of their own), failed ones included; the last one of a job stopped at the
-    target is the one that passed."""
+    confirmations: list[Confirmation] = field(default_factory=list)
+    """Every confirmation of the early stop (up to ``final_eval_episodes`` each, seeds of their
+    own), failed ones included; the last one of a job stopped at the target is the one that
+    passed."""
     final: dict[str, Any] | None = None
     """``SubtaskEvaluation.to_json()`` over ``final_eval_episodes`` on the report seed, measured
     once after training (None when cancelled)."""
@@ -115,9 +120,15 @@ class TrainResult:
     @classmethod
     def from_json(cls, doc: dict[str, Any]) -> TrainResult:
         doc = dict(doc)
-        for key in ("curve", "confirmations"):
-            doc[key] = [(int(s), float(r)) for s, r in doc.get(key, [])]
+        doc["curve"] = [(int(s), float(r)) for s, r in doc.get("curve", [])]
+        doc["confirmations"] = [_confirmation(c) for c in doc.get("confirmations", [])]
         return cls(**doc)
+
+
+def _confirmation(stored: list[Any]) -> Confirmation:
+    """A confirmation as ``TrainResult.to_json`` or ``CONFIRMATIONS`` stores it."""
+    episodes = stored[2] if len(stored) > 2 else None
+    return int(stored[0]), float(stored[1]), None if episodes is None else int(episodes)
 
 
 def subtask_env(
@@ -203,12 +214,12 @@ def _finished(result: TrainResult, training: TrainingSpec) -> bool:
     return result.stopped == "target" and (passed is None or passed >= training.target_success)
 
 
-def _stored_confirmations(folder: Path) -> list[tuple[int, float]]:
+def _stored_confirmations(folder: Path) -> list[Confirmation]:
     """The confirmations an earlier attempt recorded in ``folder`` (none if unreadable)."""
     path = folder / CONFIRMATIONS
     try:
-        return [(int(s), float(r)) for s, r in json.loads(path.read_text())]
-    except (OSError, ValueError, TypeError):
+        return [_confirmation(c) for c in json.loads(path.read_text())]
+    except (OSError, ValueError, TypeError, IndexError):
         return []
 
 
@@ -254,10 +265,14 @@ class _SubtaskTraining:
 
     def confirmation(self) -> SubtaskEvaluation:
         """The next confirmation of the early stop (``final_eval_episodes``, a seed of its
-        own each), recorded in ``confirmations``."""
+        own each, stopped once the target is out of reach), recorded in ``confirmations``."""
         seed = self.job.seed + CONFIRMATION_SEED + len(self.confirmations)
-        check = self.evaluation(self.job.training.final_eval_episodes, seed)
-        self.confirmations.append((int(self.model.num_timesteps), check.success_rate))
+        training = self.job.training
+        episodes = training.final_eval_episodes
+        needed = next(n for n in range(episodes + 1) if n / episodes >= training.target_success)
+        check = evaluate_subtask(self.act, self.eval_env.envs, episodes, seed, needed)
+        steps = int(self.model.num_timesteps)
+        self.confirmations.append((steps, check.success_rate, check.episodes))
         if self.hooks.may_write():
             write_json(self.out / CONFIRMATIONS, [list(c) for c in self.confirmations])
         return check

@@ -100,6 +100,27 @@ def test_lanes_step_in_lockstep_with_one_batched_call_and_seeds_of_their_own(
         env.close()
 
 
+def test_an_evaluation_stops_once_its_target_is_out_of_reach_and_rates_what_it_ran(
+    mission: MissionSpec, plan: MissionPlan
+) -> None:
+    from workers.training import subtask_env
+
+    lanes = [subtask_env(mission, plan, mission.training, 0, evaluation=True) for _ in range(3)]
+
+    def crash(observations: np.ndarray) -> np.ndarray:
+        return np.tile(np.array([-1, 0], dtype=np.float32), (len(observations), 1))
+
+    # 8 successes needed of 10: out of reach at the third failure
+    hopeless = evaluate_subtask(crash, lanes, episodes=10, seed=4, needed=8)
+    assert (hopeless.episodes, hopeless.collision_rate, hopeless.success_rate) == (3, 1.0, 0.0)
+    assert evaluate_subtask(crash, lanes, episodes=10, seed=4).episodes == 10
+    one = lanes[0]
+    reached = evaluate_subtask(follower(lambda: one), one, episodes=3, seed=1, needed=3)
+    assert (reached.episodes, reached.success_rate) == (3, 1.0)
+    for env in lanes:
+        env.close()
+
+
 def test_mission_rollout_of_a_good_policy_is_accepted(
     mission: MissionSpec, plan: MissionPlan
 ) -> None:

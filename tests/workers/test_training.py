@@ -25,7 +25,7 @@ from workers.callbacks import (
 from workers.evaluation import SubtaskEvaluation
 from workers.jobs import SubtaskJob
 from workers.mission import MissionError, MissionSpec
-from workers.training import TrainingError, subtask_env, train_subtask
+from workers.training import TrainingError, TrainResult, subtask_env, train_subtask
 from workers.training_spec import TrainingSpec
 
 from .missions import Recorder, tiny_mission
@@ -206,29 +206,38 @@ def test_the_reported_evaluation_is_measured_once_after_every_decision_on_a_seed
     seed, which no decision used, and its rate is reported even below the target."""
     import workers.training as training_module
 
-    asked: list[tuple[int, int]] = []
-    rates = iter([0.5, 1.0, 0.3])
+    asked: list[tuple[int, int, int]] = []
+    rates = iter([(0.5, 14), 1.0, 0.3])
 
-    def scripted(act: Any, envs: Any, episodes: int, seed: int) -> SubtaskEvaluation:
-        asked.append((episodes, seed))
-        return SubtaskEvaluation(episodes, next(rates), 0.0, 0.0, None)
+    def scripted(
+        act: Any, envs: Any, episodes: int, seed: int, needed: int = 0
+    ) -> SubtaskEvaluation:
+        asked.append((episodes, seed, needed))
+        rate = next(rates)
+        if isinstance(rate, tuple):  # out of reach after 7 failures in 14: stopped there
+            rate, episodes = rate
+        return SubtaskEvaluation(episodes, rate, 0.0, 0.0, None)
 
     monkeypatch.setattr(training_module, "evaluate_subtask", scripted)
     monkeypatch.setattr(ResumableEvalCallback, "last_success_rate", property(lambda _: 1.0))
     spec = job(mission, n_timesteps=400, eval_freq=100, final_eval_episodes=20)
     result = train_subtask(mission, plan, spec, tmp_path)
     assert result.stopped == "target" and result.steps == 200
-    assert result.confirmations == [(100, 0.5), (200, 1.0)]
+    assert result.confirmations == [(100, 0.5, 14), (200, 1.0, 20)]
     assert result.final is not None and result.final["success_rate"] == 0.3
+    assert [(episodes, needed) for episodes, _, needed in asked] == [(20, 19), (20, 19), (20, 0)]
     report = spec.seed + training_module.REPORT_SEED
-    assert [seed for _, seed in asked] == [
+    assert [seed for _, seed, _ in asked] == [
         spec.seed + training_module.CONFIRMATION_SEED,
         spec.seed + training_module.CONFIRMATION_SEED + 1,
         report,
     ]
     assert report != spec.seed + training_module.PERIODIC_SEED
     stored = json.loads((tmp_path / "confirmations.json").read_text())
-    assert stored == [[100, 0.5], [200, 1.0]]
+    assert stored == [[100, 0.5, 14], [200, 1.0, 20]]
+    assert TrainResult.from_json(result.to_json()) == result
+    older = {**result.to_json(), "confirmations": [[100, 0.5], [200, 1.0]]}
+    assert TrainResult.from_json(older).confirmations == [(100, 0.5, None), (200, 1.0, None)]
 
 
 def test_a_stored_result_below_a_raised_target_trains_on(
