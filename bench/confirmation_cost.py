@@ -29,7 +29,7 @@ def confirmation_costs(folder: Path, confirmations: int, repeats: int, policies:
     import torch
 
     from workers.agents import ALGORITHMS
-    from workers.evaluation import evaluate_subtask
+    from workers.evaluation import evaluate_subtask, successes_needed
     from workers.mission import load_mission
     from workers.policy_act import deterministic_act
     from workers.run import stored_or_new_plan
@@ -40,7 +40,7 @@ def confirmation_costs(folder: Path, confirmations: int, repeats: int, policies:
     training = mission.training
     plan = stored_or_new_plan(mission, folder / "run")
     episodes = training.final_eval_episodes
-    needed = next(n for n in range(episodes + 1) if n / episodes >= training.target_success)
+    needed = successes_needed(episodes, training.target_success)
     lines = [
         f"{episodes} trials, {needed} needed, {training.eval_lanes} lanes, best of {repeats}\n",
         "| policy | seed | whole: episodes, success, CPU s | stopped: episodes, success, CPU s "

@@ -140,6 +140,11 @@ def run_lanes(
         running = still
 
 
+def successes_needed(episodes: int, target: float) -> int:
+    """The fewest successes of ``episodes`` whose rate reaches ``target`` (at most 1)."""
+    return next(n for n in range(episodes + 1) if n / episodes >= target)
+
+
 def evaluate_subtask(
     act: Act, envs: Lanes, episodes: int, seed: int, needed: int = 0
 ) -> SubtaskEvaluation:

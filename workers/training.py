@@ -45,7 +45,7 @@ from workers.callbacks import (
     plateaued,
 )
 from workers.checkpoints import prune_checkpoints, save_checkpoint
-from workers.evaluation import SubtaskEvaluation, evaluate_subtask, seed_lanes
+from workers.evaluation import SubtaskEvaluation, evaluate_subtask, seed_lanes, successes_needed
 from workers.hooks import CurvePoint, TrainingHooks
 from workers.jobs import SubtaskJob
 from workers.mission import MissionSpec
@@ -267,10 +267,9 @@ class _SubtaskTraining:
         """The next confirmation of the early stop (``final_eval_episodes``, a seed of its
         own each, stopped once the target is out of reach), recorded in ``confirmations``."""
         seed = self.job.seed + CONFIRMATION_SEED + len(self.confirmations)
-        training = self.job.training
-        episodes = training.final_eval_episodes
-        needed = next(n for n in range(episodes + 1) if n / episodes >= training.target_success)
-        check = evaluate_subtask(self.act, self.eval_env.envs, episodes, seed, needed)
+        episodes = self.job.training.final_eval_episodes
+        needed = successes_needed(episodes, self.job.training.target_success)
+        check = self.evaluation(episodes, seed, needed)
         steps = int(self.model.num_timesteps)
         self.confirmations.append((steps, check.success_rate, check.episodes))
         if self.hooks.may_write():
@@ -282,8 +281,8 @@ class _SubtaskTraining:
         episodes = self.job.training.eval_episodes
         return self.evaluation(episodes, self.job.seed + PERIODIC_SEED)
 
-    def evaluation(self, episodes: int, seed: int) -> SubtaskEvaluation:
-        return evaluate_subtask(self.act, self.eval_env.envs, episodes, seed)
+    def evaluation(self, episodes: int, seed: int, needed: int = 0) -> SubtaskEvaluation:
+        return evaluate_subtask(self.act, self.eval_env.envs, episodes, seed, needed)
 
     def start_check(self) -> StartCheck | None:
         """A fresh residual agent is its feed-forward: measure it before any update (None: not
