@@ -9,7 +9,7 @@ starts, and writes the first mission with a sub-task under 90 % to ``--out``
 (``bench/missions/racecar-dense-forest-SEED.yaml`` by default).
 
 ``bench/missions/racecar-dense-forest.yaml`` is seed 7's, the first such mission when it was
-drawn (85 % from the start in 20 episodes); the racecar's controller has since learned to hold
+drawn (85 % from the start in 20 episodes); the racecar's controller, changed since, now holds
 it (100 % at step 0, and seeds 0-14 likewise). ``racecar-dense-forest-15.yaml`` is the first
 with a sub-task under 90 % for the controller of 01301fc (80 % in 20 episodes).
 

@@ -39,7 +39,7 @@ BACKENDS = ("sb3", "sbx")
 WARM_UP = 1_000
 
 
-def rates(name: str, steps: int, repeats: int, lanes: list[int]) -> str:
+def rates(name: str, steps: int, repeats: int, env_counts: list[int]) -> str:
     """One table row per backend and number of envs: env steps per wall and per CPU second, ms
     per step."""
     import numpy as np
@@ -54,7 +54,7 @@ def rates(name: str, steps: int, repeats: int, lanes: list[int]) -> str:
     out = Path(os.environ.get("TMPDIR", "/tmp")) / "ltlnav-bench-backends" / name
     plan = stored_or_new_plan(mission, out)
     torch.set_num_threads(mission.training.torch_threads)
-    variants = [(backend, n) for backend in BACKENDS for n in lanes]
+    variants = [(backend, n) for backend in BACKENDS for n in env_counts]
     best = {v: (0.0, 0.0) for v in variants}
     for _ in range(repeats):
         for backend, n in variants:
@@ -74,12 +74,13 @@ def rates(name: str, steps: int, repeats: int, lanes: list[int]) -> str:
             env.close()
     alone = env_step_seconds(subtask_env(mission, plan, mission.training, 0), steps)
     rows = []
+    first = best["sb3", env_counts[0]][0]
     for backend, n in variants:
         per_wall, per_cpu = best[backend, n]
         learner = 1e3 * (1 / per_cpu - alone)
         rows.append(
             f"| {name} | {backend} | {n} | {per_wall:.0f} | {per_cpu:.0f} | {1e3 / per_cpu:.2f} "
-            f"| {1e3 * alone:.2f} | {learner:.2f} | {per_wall / best['sb3', lanes[0]][0]:.2f} |"
+            f"| {1e3 * alone:.2f} | {learner:.2f} | {per_wall / first:.2f} |"
         )
     return "\n".join(rows)
 
