@@ -161,9 +161,8 @@ def env_count_problems(
 ) -> list[tuple[str, str]]:
     """(field, problem) of each thing that ``n_envs`` envs per learner cannot honour: the step
     counts (``counts``, by field name) and an off-policy ``train_freq``, which SB3 counts in
-    steps of all the envs at once, must be multiples of ``n_envs``."""
-    if n_envs == 1:
-        return []
+    steps of all the envs at once, must be multiples of ``n_envs``. A ``train_freq`` of no
+    form SB3 takes is a problem whatever ``n_envs``."""
     problems = [
         (field, f"{value} is not a multiple of n_envs ({n_envs}), whose envs step together")
         for field, value in counts.items()
@@ -172,7 +171,17 @@ def env_count_problems(
     if algorithm == "ppo":
         return problems
     freq = hyperparams.get("train_freq", OFF_POLICY_TRAIN_FREQ)
-    steps, unit = (freq, "step") if isinstance(freq, int) else (freq[0], freq[1])
+    if isinstance(freq, int) and not isinstance(freq, bool):
+        steps, unit = freq, "step"
+    elif isinstance(freq, list | tuple) and len(freq) == 2 and isinstance(freq[0], int):
+        steps, unit = freq
+    else:
+        unit = "form"
+    if unit not in ("step", "episode") or steps < 1:
+        shape = "a positive number of env steps, or [n, 'step' or 'episode'] with n positive"
+        return [*problems, ("hyperparams.train_freq", shape)]
+    if n_envs == 1:
+        return problems
     if unit != "step":
         problems.append(
             ("hyperparams.train_freq", f"counts {unit}s, which SB3 trains with one env only")

@@ -65,6 +65,9 @@ def test_the_counts_that_envs_step_together_through_must_be_multiples_of_them() 
         tiny_mission(n_envs=2, hyperparams=episodic)
     with pytest.raises(MissionError, match=r"checkpoint_freq: 25 is not a multiple"):
         tiny_mission(n_envs=2, checkpoint_freq=25)
+    for malformed in (5.5, "2", [3], [0, "step"], [1, "epoch"], -1):  # whatever n_envs
+        with pytest.raises(MissionError, match=r"train_freq: a positive number of env steps"):
+            tiny_mission(hyperparams={"train_freq": malformed})
     four = tiny_mission(n_envs=4, hyperparams={"train_freq": 8})
     assert hyperparameters(four.training, 2)["train_freq"] == 2
     assert hyperparameters(tiny_mission(n_envs=2).training, 2)["train_freq"] == 1
