@@ -331,7 +331,7 @@ class TrainingSpec(BaseModel):
         return hyperparams
 
     @model_validator(mode="after")
-    def _backend(self) -> TrainingSpec:
+    def _learner(self) -> TrainingSpec:
         raise_problems(backend_problems(self.backend, self.algorithm, self.hyperparams))
         counts = {"eval_freq": self.eval_freq, "checkpoint_freq": self.checkpoint_freq}
         raise_problems(env_count_problems(self.n_envs, self.algorithm, self.hyperparams, counts))
