@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 
@@ -279,6 +280,43 @@ class ReportedCheckpoints(BaseCallback):
         steps = int(self.num_timesteps)
         self.hooks.checkpoint(steps, save_checkpoint(self.model, self.folder, steps))
         return True
+
+
+class ActorBurnIn(BaseCallback):
+    """Until ``steps`` env steps, the off-policy agent's gradient steps update its critic only:
+    the actor's optimizer (and SAC's entropy coefficient's) takes no step, so a residual agent
+    drives as its controller while its critic learns the value of that behaviour (the burn-in of
+    residual policy learning, Silver et al. 2018). Switched at the end of each rollout, before
+    the ``train`` call that follows it."""
+
+    def __init__(self, steps: int) -> None:
+        super().__init__()
+        self.steps = steps
+
+    def _frozen_optimizers(self) -> list[torch.optim.Optimizer]:
+        actor = getattr(self.model, "actor", None)
+        found = [getattr(actor, "optimizer", None), getattr(self.model, "ent_coef_optimizer", None)]
+        return [o for o in found if isinstance(o, torch.optim.Optimizer)]
+
+    def _switch(self, frozen: bool) -> None:
+        for optimizer in self._frozen_optimizers():
+            if frozen:
+                optimizer.step = _no_step  # type: ignore[method-assign, assignment]
+            else:
+                optimizer.__dict__.pop("step", None)
+
+    def _on_rollout_end(self) -> None:
+        self._switch(self.num_timesteps < self.steps)
+
+    def _on_training_end(self) -> None:
+        self._switch(False)
+
+    def _on_step(self) -> bool:
+        return True
+
+
+def _no_step(*_args: Any, **_kwargs: Any) -> None:
+    """An optimizer step that changes nothing (``ActorBurnIn``)."""
 
 
 class PruneCheckpoints(BaseCallback):

@@ -153,6 +153,14 @@ def backend_problems(
     return problems
 
 
+def burn_in_problems(steps: int, backend: str, algorithm: str) -> list[tuple[str, str]]:
+    """(field, problem) of an ``actor_burn_in`` the learner cannot apply."""
+    if steps == 0 or (backend == "sb3" and algorithm != "ppo"):
+        return []
+    learner = "backend sbx" if backend != "sb3" else algorithm
+    return [("actor_burn_in", f"not available with {learner}; use sb3's sac, td3 or ddpg, or 0")]
+
+
 def env_count_problems(
     n_envs: int,
     algorithm: str,

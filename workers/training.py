@@ -35,6 +35,7 @@ from planner.plan import MissionPlan
 from workers.agents import ALGORITHMS, TrainingError, keep_best_policy, load_agent
 from workers.atomic import save_with, write_json
 from workers.callbacks import (
+    ActorBurnIn,
     PruneCheckpoints,
     ReportedCheckpoints,
     ReportProgress,
@@ -322,6 +323,7 @@ class _SubtaskTraining:
         checkpointer = ReportedCheckpoints(every, self.folder, hooks)
         plateau = StopOnPlateau(evaluation, training.plateau_evals, training.plateau_from)
         callbacks: list[BaseCallback] = [
+            ActorBurnIn(training.actor_burn_in),
             evaluation,
             plateau,
             checkpointer,

@@ -32,6 +32,7 @@ from workers.hyperparameters import (
     DEFAULT_POLICY_KWARGS,
     HYPERPARAMETERS,
     backend_problems,
+    burn_in_problems,
     env_count_problems,
     policy_kwargs_problems,
 )
@@ -224,6 +225,13 @@ class TrainingSpec(BaseModel):
         "below it a flat curve is a sub-task still to learn (SAC's often stay flat for tens of "
         "thousands of steps before they rise), which trains on.",
     )
+    actor_burn_in: int = Field(
+        0,
+        ge=0,
+        description="Env steps at the start during which only the critic learns: the actor "
+        "and SAC's entropy coefficient are not updated, so a residual agent keeps its "
+        "controller meanwhile (sb3's off-policy algorithms).",
+    )
     checkpoint_freq: int | None = Field(
         None, ge=1, description="Env steps between checkpoints (None: every eval_freq steps)."
     )
@@ -333,6 +341,7 @@ class TrainingSpec(BaseModel):
     @model_validator(mode="after")
     def _learner(self) -> TrainingSpec:
         raise_problems(backend_problems(self.backend, self.algorithm, self.hyperparams))
+        raise_problems(burn_in_problems(self.actor_burn_in, self.backend, self.algorithm))
         counts = {"eval_freq": self.eval_freq, "checkpoint_freq": self.checkpoint_freq}
         raise_problems(env_count_problems(self.n_envs, self.algorithm, self.hyperparams, counts))
         return self

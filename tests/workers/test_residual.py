@@ -17,6 +17,7 @@ from workers.mission import MissionSpec
 from workers.residual import recorded_start, zero_output_layer
 from workers.run import stored_or_new_plan
 from workers.training import TrainResult, subtask_env, train_subtask
+from workers.training_spec import TrainingSpec
 
 from .missions import Recorder, tiny_mission
 
@@ -70,3 +71,32 @@ def test_a_start_below_the_target_trains_on_and_stays_on_the_curve(tmp_path: Pat
     assert result.curve[0][0] == 0 and result.curve[0][1] < 0.95
     assert [s for s, _ in result.curve[1:]] == [100, 200]
     assert result.steps == 200
+
+
+@pytest.mark.parametrize("burn_in", [0, 150, 1000])
+def test_during_the_actor_burn_in_only_the_critic_learns(tmp_path: Path, burn_in: int) -> None:
+    mission, plan, job = _unicycle(tmp_path, 0.01)
+    training = mission.training.model_copy(update={"actor_burn_in": burn_in})
+    job = SubtaskJob(subtask=0, training=training, seed=3)
+    result = train_subtask(mission, plan, job, tmp_path / "job")
+    assert result.steps == 200
+    model = ALGORITHMS["sac"].load(result.model_path, device="cpu")
+    env = subtask_env(mission, plan, training, 0)
+    obs = np.stack([env.observation_space.sample() for _ in range(5)])
+    actions = model.predict(obs, deterministic=True)[0]
+    if burn_in > 200:  # the actor never stepped: the agent is still its controller
+        np.testing.assert_array_equal(actions, 0.0)
+        assert model.log_ent_coef.item() == 0.0
+    else:
+        assert np.abs(actions).max() > 0 and model.log_ent_coef.item() != 0.0
+    assert model.actor.optimizer.step.__name__ == "step"  # unfrozen once training ended
+
+
+@pytest.mark.parametrize(
+    ("changes", "learner"), [({"algorithm": "ppo"}, "ppo"), ({"backend": "sbx"}, "backend sbx")]
+)
+def test_an_actor_burn_in_the_learner_cannot_apply_is_refused(
+    changes: dict[str, str], learner: str
+) -> None:
+    with pytest.raises(ValueError, match=f"actor_burn_in.*not available with {learner}"):
+        TrainingSpec.model_validate({"actor_burn_in": 100, **changes})
