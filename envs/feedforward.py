@@ -182,6 +182,7 @@ class ActionShaping:
                 f"only for robots driven by (forward, turn) actions, not a {robot.name}",
             )
         self.gain = options.guide_feedforward
+        self.residual = options.residual_scale
         supported = WORLD_FRAME_ROBOTS | HEADING_FEATURES.keys()
         if self.gain is not None and robot.name not in supported:
             raise EnvConfigError(
@@ -233,6 +234,11 @@ class ActionShaping:
                 f"(actions are not clipped), got {np.asarray(action).tolist()}"
             )
         backwards = False
+        if self.gain is not None and self.residual is not None:
+            if robot.name in WORLD_FRAME_ROBOTS:
+                a *= self.residual
+            else:
+                a[1] *= self.residual
         if self.gain is not None:
             x = robot.position()
             if self.pursuit:

@@ -84,6 +84,11 @@ class EnvOptions:
     world-frame robots: to the whole action, (forward, turn) robots: to the turn) to the
     policy's action, clipped to ``[-1, 1]``: the policy learns a correction to following the
     guide. None: the action goes to the robot unchanged."""
+    residual_scale: float | None = None
+    """With ``guide_feedforward``: the share of the command range the policy's correction may
+    take where the feed-forward adds to it (world-frame robots: the whole action; (forward,
+    turn) robots: the turn), in ``(0, 1]``; the policy's component is scaled by it before the
+    addition. None: 1, a correction that can override the feed-forward."""
     feedforward_law: FeedforwardLaw = "heading"
     """How ``guide_feedforward`` turns a (forward, turn) robot: ``"heading"``, toward the carrot
     in proportion to the heading error; ``"pursuit"`` (robots with a minimum turning radius),
@@ -159,9 +164,15 @@ class EnvOptions:
             "r_ball",
             "pursuit_lookahead",
             "pursuit_tight_lookahead",
+            "residual_scale",
         ):
             value = getattr(self, name)
             need(value is None or (number(name) and value > 0), name, "must be > 0")
+        need(
+            self.residual_scale is None or not number("residual_scale") or self.residual_scale <= 1,
+            "residual_scale",
+            "must be <= 1",
+        )
         need(number("curriculum") and 0 <= self.curriculum <= 1, "curriculum", "must be in [0, 1]")
         need(number("start_noise") and self.start_noise >= 0, "start_noise", "must be >= 0")
         need(

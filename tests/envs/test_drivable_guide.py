@@ -273,3 +273,47 @@ def test_a_redrawn_track_knows_the_room_around_it() -> None:
         assert track.slack.min() >= -1e-9  # the redraw keeps at least the robot's radius
     finally:
         env.close()
+
+
+def test_a_scaled_residual_corrects_the_pursuit_without_overriding_it() -> None:
+    points = np.array([[0.05 * i, 1.0] for i in range(201)])  # 10 m east along y = 1
+    world = World(np.array([[0.0, 12.0], [0.0, 5.0]]), [], {})
+    robot = make_robot("racecar", world, RADIUS)
+    try:
+        law = {"guide_feedforward": 1.0, "feedforward_law": "pursuit", "min_forward": 0.2}
+        full = ActionShaping(robot, EnvOptions(**law))
+        scaled = ActionShaping(robot, EnvOptions(**law, residual_scale=0.3))
+        robot.reset(np.array([2.0, 1.3]), np.random.default_rng(0), heading=0.0)
+        track = Track.dense(points, 21)
+        pursuit = full.apply(np.zeros(2), track, 4)
+        assert pursuit[1] < -0.1  # 0.3 m left of the track: it turns right, back to it
+        np.testing.assert_allclose(scaled.apply(np.zeros(2), track, 4), pursuit)
+        hard_left = np.array([0.0, 1.0])
+        overridden = full.apply(hard_left, track, 4)[1]
+        corrected = scaled.apply(hard_left, track, 4)[1]
+        assert overridden == pytest.approx(pursuit[1] + 1.0) and overridden > 0  # turns away
+        assert corrected == pytest.approx(pursuit[1] + 0.3) and corrected < 0  # still back
+        assert scaled.apply(hard_left, track, 4)[0] == full.apply(hard_left, track, 4)[0]
+    finally:
+        robot.close()
+    with pytest.raises(EnvConfigError, match="<= 1") as err:
+        EnvOptions(residual_scale=1.5)
+    assert err.value.field == "options.residual_scale"
+
+
+def test_a_world_frame_robot_s_whole_correction_is_scaled() -> None:
+    points = np.array([[0.05 * i, 1.0] for i in range(201)])
+    world = World(np.array([[0.0, 12.0], [0.0, 5.0]]), [], {})
+    robot = make_robot("point", world, 0.1)
+    try:
+        law = {"guide_feedforward": 0.5}
+        full = ActionShaping(robot, EnvOptions(**law))
+        scaled = ActionShaping(robot, EnvOptions(**law, residual_scale=0.3))
+        robot.reset(np.array([2.0, 1.0]), np.random.default_rng(0))
+        track, nudge = Track.dense(points, 21), np.array([0.2, -0.2])
+        base = full.apply(np.zeros(2), track, 4)
+        assert np.all(np.abs(base) < 0.7)
+        np.testing.assert_allclose(full.apply(nudge, track, 4) - base, nudge)
+        np.testing.assert_allclose(scaled.apply(nudge, track, 4) - base, 0.3 * nudge)
+    finally:
+        robot.close()
