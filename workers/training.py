@@ -323,7 +323,6 @@ class _SubtaskTraining:
         checkpointer = ReportedCheckpoints(every, self.folder, hooks)
         plateau = StopOnPlateau(evaluation, training.plateau_evals, training.plateau_from)
         callbacks: list[BaseCallback] = [
-            ActorBurnIn(training.actor_burn_in),
             evaluation,
             plateau,
             checkpointer,
@@ -331,6 +330,8 @@ class _SubtaskTraining:
             cancel,
             ReportProgress(hooks.progress, training.n_timesteps, evaluation),
         ]
+        if training.actor_burn_in > self.resumed:
+            callbacks.append(ActorBurnIn(training.actor_burn_in))
         hooks.progress(self.resumed, evaluation.last_success_rate, training.n_timesteps)
         met_at_start = start is not None and start.confirmed is not None
         flat = plateaued(evaluation.success_curve, training.plateau_evals, training.plateau_from)
