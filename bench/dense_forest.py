@@ -6,7 +6,9 @@ forest of 70 trees (0.3-0.8 m across), a racecar start with a random heading and
 where a grid search reaches them, and the task ``<>(g1 && <>g2)``. ``main`` tries seeds from
 ``--first`` on, plans each, runs ``--episodes`` zero-action episodes per sub-task from its real
 starts, and writes the first mission with a sub-task under 90 % to ``--out``
-(``bench/missions/racecar-dense-forest-SEED.yaml`` by default).
+(``bench/missions/racecar-dense-forest-SEED.yaml`` by default). ``--size`` draws the forest in
+another square (``racecar-dense-forest-SIZEm-SEED``), with as many trees per square metre and
+goals at least 6 m apart (scaled down in a smaller square).
 
 ``bench/missions/racecar-dense-forest.yaml`` is seed 7's, the first such mission when it was
 drawn (85 % from the start in 20 episodes); the racecar's controller, changed since, now holds
@@ -44,20 +46,23 @@ from workers.mission import MissionError  # noqa: E402
 SIZE, TREES, RADIUS = 20.0, 70, 0.27
 
 
-def mission(seed: int) -> dict[str, Any]:
-    """The dense-forest racecar mission of ``seed``."""
+def mission(seed: int, size: float = SIZE) -> dict[str, Any]:
+    """The dense-forest racecar mission of ``seed`` in a ``size`` x ``size`` m square (trees as
+    dense as in the 20 m one)."""
     rng = np.random.default_rng(seed)
-    radii = rng.uniform(0.15, 0.4, TREES)
-    centres = rng.uniform(0.0, SIZE, (TREES, 2))
+    trees_count = round(TREES * (size / SIZE) ** 2)
+    radii = rng.uniform(0.15, 0.4, trees_count)
+    centres = rng.uniform(0.0, size, (trees_count, 2))
     trees = [_ball(c, float(r)) for c, r in zip(centres, radii, strict=True)]
-    base: dict[str, Any] = {"bounds": [[0.0, SIZE], [0.0, SIZE]], "obstacles": trees}
+    base: dict[str, Any] = {"bounds": [[0.0, size], [0.0, size]], "obstacles": trees}
     world = WorldSpec.model_validate({**base, "regions": {}}).build()
     start = world.sample_free(rng, 1, RADIUS + 0.5)[0]
     regions: dict[str, Any] = {}
+    apart = 6.0 * min(1.0, size / SIZE)
     for _ in range(1000):
         centre = world.sample_free(rng, 1, 1.0 + RADIUS)[0]
         placed = [np.array(r["ball"]["center"]) for r in regions.values()]
-        if any(np.linalg.norm(centre - p) < 6.0 for p in [start, *placed]):
+        if any(np.linalg.norm(centre - p) < apart for p in [start, *placed]):
             continue
         trial = {**regions, f"g{len(regions) + 1}": _ball(centre, 1.0)}
         built = WorldSpec.model_validate({**base, "regions": trial}).build()
@@ -68,8 +73,9 @@ def mission(seed: int) -> dict[str, Any]:
     else:
         raise ValueError(f"seed {seed}: no two reachable goals fit")
     heading = round(float(rng.uniform(-np.pi, np.pi)), 3)
+    name = "racecar-dense-forest" + ("" if size == SIZE else f"-{size:g}m")
     return {
-        "name": f"racecar-dense-forest-{seed}",
+        "name": f"{name}-{seed}",
         "task": "[]!obstacle && <>(g1 && <>g2)",
         "robot": {
             "model": "racecar",
@@ -85,11 +91,16 @@ def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--first", type=int, default=0)
     p.add_argument("--episodes", type=int, default=20)
+    p.add_argument("--size", type=float, default=SIZE, help="side of the square world, m")
     p.add_argument("--out", type=Path, help="default: bench/missions/<the mission's name>.yaml")
     p.add_argument("--work", type=Path, default=ROOT / "var" / "bench" / "dense_forest")
     args = p.parse_args(argv)
     for seed in range(args.first, args.first + 50):
-        document = mission(seed)
+        try:
+            document = mission(seed, args.size)
+        except ValueError as error:
+            print(error, flush=True)
+            continue
         try:
             rates = controller_rates(document, args.episodes, args.work / str(seed))
         except MissionError as error:
