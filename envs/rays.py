@@ -16,11 +16,25 @@ import numpy as np
 from numpy.typing import NDArray
 
 from envs.ray_cells import FastCell2, FastCell3, gap
+from envs.robots import RobotParams, top_speed
 from planner.geometry.shapes import Ball, Box, Polygon
 from planner.geometry.world import World
 
 Float32Array = NDArray[np.float32]
 FloatArray = NDArray[np.float64]
+
+
+RAY_SECONDS = 3.5
+"""The default ray range in seconds at the robot's top speed: 3.5 m for the built-in robots
+(1 m/s), which the world-scaled default (an eighth of the diagonal) gave in the 20 m worlds the
+controllers and rewards were measured in."""
+
+
+def default_ray_range(params: RobotParams) -> float:
+    """How far the rays of a robot of ``params`` see unless ``ray_range`` is set:
+    ``RAY_SECONDS`` of its top speed, and at least two of its tightest turning radii (room to
+    swerve round what it sees)."""
+    return max(RAY_SECONDS * top_speed(params), 2.0 * params.min_turning_radius())
 
 
 def ray_directions(dim: int, count: int) -> FloatArray:

@@ -25,6 +25,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from envs.options import EnvOptions
+from envs.rays import default_ray_range
+from envs.robots import robot_params
 from planner.geometry.world import World
 from planner.guidance import Guide
 from planner.plan import MissionPlan
@@ -109,7 +111,7 @@ def manifest_for(
         subtasks=entries,
         cycles=training.cycles,
         mission_evaluation=evaluation.to_json() if evaluation is not None else None,
-        eval_env=eval_env_document(training.eval_env_options(mission.robot.model)),
+        eval_env=recorded_eval_env(mission),
         files=list(files),
     )
 
@@ -117,6 +119,17 @@ def manifest_for(
 def eval_env_document(options: EnvOptions) -> dict[str, Any]:
     """``options`` as the manifest's ``eval_env`` (every field but ``rewards``)."""
     return {f.name: getattr(options, f.name) for f in fields(options) if f.name != "rewards"}
+
+
+def recorded_eval_env(mission: MissionSpec) -> dict[str, Any]:
+    """The manifest's ``eval_env`` for ``mission``: its evaluation options with the rays' range
+    resolved, so that a later default cannot change what the bundle's policies observe."""
+    options = mission.training.eval_env_options(mission.robot.model)
+    document = eval_env_document(options)
+    if options.rays and options.ray_range is None:
+        spec = mission.robot
+        document["ray_range"] = default_ray_range(robot_params(spec.model, spec.params))
+    return document
 
 
 def write_bundle(

@@ -18,6 +18,7 @@ which hands the robot from sub-task env to sub-task env when a goal region is re
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import re
@@ -230,11 +231,18 @@ class ConcatenatedPolicy:
 
     def options(self) -> EnvOptions:
         """The evaluation env's options: the recorded ones (bundles written before they were
-        recorded: the mission's defaults of this ltlnav)."""
+        recorded: the mission's defaults of this ltlnav). A bundle that does not record its
+        rays' range predates ranges in the robot's terms: its policies saw an eighth of the
+        world's diagonal."""
         recorded = self.manifest.eval_env
         if recorded is not None:
-            return EnvOptions(**recorded)
-        return self.mission.training.eval_env_options(self.mission.robot.model)
+            options = EnvOptions(**recorded)
+        else:
+            options = self.mission.training.eval_env_options(self.mission.robot.model)
+        if options.rays and options.ray_range is None:
+            world_scaled = self.mission.build_world().diagonal / 8.0
+            options = dataclasses.replace(options, ray_range=world_scaled)
+        return options
 
     def redrawn_subtasks(self) -> list[int]:
         """Sub-tasks whose guide this ltlnav draws otherwise than the manifest's (the one their

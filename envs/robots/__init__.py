@@ -90,7 +90,11 @@ def make_robot(
 
 def nominal_speed(robot: Robot) -> float:
     """The robot's top speed in m/s (``max_speed``; racecar: wheel speed times radius)."""
-    params = robot.params
+    return top_speed(robot.params)
+
+
+def top_speed(params: RobotParams) -> float:
+    """The top speed in m/s of a robot of ``params`` (see ``nominal_speed``)."""
     if isinstance(params, RacecarParams):
         return float(params.max_wheel_speed * WHEEL_RADIUS)
     speed = getattr(params, "max_speed", None)

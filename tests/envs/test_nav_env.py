@@ -22,9 +22,9 @@ from envs.errors import EnvConfigError
 from envs.factory import ENV_ID, make_env, split_subtask
 from envs.nav_env import NavEnv
 from envs.options import EnvOptions
-from envs.rays import RayCaster
+from envs.rays import RAY_SECONDS, RayCaster, default_ray_range
 from envs.rewards import REWARD_MODES
-from envs.robots import RobotConfigError
+from envs.robots import RobotConfigError, make_robot
 from envs.spec import RobotSpec
 from planner.decompose import SubTask
 from planner.geometry.shapes import Ball, Box, Polygon
@@ -695,3 +695,49 @@ def test_r_ball_within_clearance_keeps_every_ball_clear_of_obstacles(envs: list[
     assert any(world.in_collision(leg.guide.centers, plan.r_ball).any() for leg in wide.legs)
     with pytest.raises(EnvConfigError, match="r_ball_within_clearance"):
         EnvOptions(r_ball_within_clearance=1)  # type: ignore[arg-type]
+
+
+def square_world(side: float, dim: int = 2) -> World:
+    return World(np.array([[0.0, side]] * dim), [], {})
+
+
+@pytest.mark.parametrize(
+    ("model", "dim"), [("point", 2), ("point", 3), ("unicycle", 2), ("quadrotor", 3)]
+)
+def test_rays_see_in_the_robot_s_terms_whatever_the_world_s_size(model: str, dim: int) -> None:
+    for side in (10.0, 60.0):
+        robot = make_robot(model, square_world(side, dim), 0.2)
+        try:
+            assert default_ray_range(robot.params) == pytest.approx(RAY_SECONDS * 1.0)
+        finally:
+            robot.close()
+    fast = make_robot(model, square_world(20.0, dim), 0.2, {"max_speed": 2.0})
+    try:
+        assert default_ray_range(fast.params) == pytest.approx(RAY_SECONDS * 2.0)
+    finally:
+        fast.close()
+
+
+def test_a_car_that_turns_wide_sees_two_turning_radii_ahead() -> None:
+    world = square_world(20.0)
+    default, wide = (
+        make_robot("racecar", world, 0.27),
+        make_robot("racecar", world, 0.27, {"max_steering": 0.1}),
+    )
+    try:
+        assert default_ray_range(default.params) == pytest.approx(RAY_SECONDS)
+        rho = wide.params.min_turning_radius()
+        assert 2.0 * rho > RAY_SECONDS
+        assert default_ray_range(wide.params) == pytest.approx(2.0 * rho)
+    finally:
+        default.close()
+        wide.close()
+
+
+def test_an_env_s_rays_default_to_the_robot_s_range_and_obey_ray_range(envs: list[NavEnv]) -> None:
+    default = build_env("unicycle", 2, rays=8)
+    set_range = build_env("unicycle", 2, rays=8, ray_range=1.5)
+    envs.extend([default, set_range])
+    assert default.ray_caster is not None and set_range.ray_caster is not None
+    assert default.ray_caster.max_range == pytest.approx(RAY_SECONDS)
+    assert set_range.ray_caster.max_range == pytest.approx(1.5)

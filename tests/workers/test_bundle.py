@@ -16,6 +16,8 @@ from gymnasium import spaces
 from stable_baselines3 import SAC
 
 from envs.mission_env import MissionEnv
+from envs.rays import default_ray_range
+from envs.robots import robot_params
 from planner.errors import LtlnavError
 from planner.plan import MissionPlan, plan_mission
 from workers.bundle import BundleError, ConcatenatedPolicy, read_bundle, write_bundle
@@ -349,6 +351,40 @@ def test_policies_act_under_the_recorded_env_options(
     older = {k: v for k, v in manifest.items() if k != "eval_env"}
     legacy = rewrite(bundle, tmp_path / "j.zip", {"manifest.json": json.dumps(older).encode()})
     ConcatenatedPolicy.load(legacy).close()  # bundles written before the field still load
+
+
+def ray_ranges(bundle: Path) -> list[float]:
+    policy = ConcatenatedPolicy.load(bundle)
+    try:
+        env = policy.make_env()
+        ranges = {e.ray_caster.max_range for e in env.envs if e.ray_caster is not None}
+        env.close()
+        return sorted(ranges)
+    finally:
+        policy.close()
+
+
+def test_a_bundle_s_policies_see_as_far_as_in_training_whatever_the_default(
+    trained: tuple[MissionSpec, MissionPlan, list[TrainResult], Path], tmp_path: Path
+) -> None:
+    mission, _, _, bundle = trained
+    with zipfile.ZipFile(bundle) as archive:
+        manifest = json.loads(archive.read("manifest.json"))
+    assert manifest["eval_env"]["rays"] > 0
+    trained_range = default_ray_range(robot_params(mission.robot.model, mission.robot.params))
+    assert manifest["eval_env"]["ray_range"] == pytest.approx(trained_range)
+    assert ray_ranges(bundle) == [pytest.approx(trained_range)]
+    # bundles written while the range was an eighth of the world's diagonal keep it
+    world_scaled = mission.build_world().diagonal / 8.0
+    assert world_scaled != pytest.approx(trained_range)
+    unresolved = {**manifest["eval_env"], "ray_range": None}
+    old = rewrite(
+        bundle, tmp_path / "k.zip", {"manifest.json": manifest_with(bundle, eval_env=unresolved)}
+    )
+    assert ray_ranges(old) == [pytest.approx(world_scaled)]
+    older = {k: v for k, v in manifest.items() if k != "eval_env"}
+    legacy = rewrite(bundle, tmp_path / "l.zip", {"manifest.json": json.dumps(older).encode()})
+    assert ray_ranges(legacy) == [pytest.approx(world_scaled)]
 
 
 def test_a_bundle_whose_guides_this_ltlnav_draws_otherwise_says_so(
