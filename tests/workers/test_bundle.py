@@ -9,6 +9,7 @@ import warnings
 import zipfile
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -151,9 +152,14 @@ def rewrite(bundle: Path, out: Path, change: dict[str, bytes | None]) -> Path:
     return out
 
 
-def manifest_with(bundle: Path, **fields: object) -> bytes:
+def manifest_of(bundle: Path) -> dict[str, Any]:
     with zipfile.ZipFile(bundle) as archive:
-        manifest = json.loads(archive.read("manifest.json"))
+        manifest: dict[str, Any] = json.loads(archive.read("manifest.json"))
+    return manifest
+
+
+def manifest_with(bundle: Path, **fields: object) -> bytes:
+    manifest = manifest_of(bundle)
     manifest.update(fields)
     return json.dumps(manifest).encode()
 
@@ -324,8 +330,7 @@ def test_policies_act_under_the_recorded_env_options(
     trained: tuple[MissionSpec, MissionPlan, list[TrainResult], Path], tmp_path: Path
 ) -> None:
     mission, _, _, bundle = trained
-    with zipfile.ZipFile(bundle) as archive:
-        manifest = json.loads(archive.read("manifest.json"))
+    manifest = manifest_of(bundle)
     expected = mission.training.eval_env_options(mission.robot.model)
     assert manifest["eval_env"]["rays"] == expected.rays
     assert manifest["eval_env"]["start_noise"] == expected.start_noise
@@ -368,8 +373,7 @@ def test_a_bundle_s_policies_see_as_far_as_in_training_whatever_the_default(
     trained: tuple[MissionSpec, MissionPlan, list[TrainResult], Path], tmp_path: Path
 ) -> None:
     mission, _, _, bundle = trained
-    with zipfile.ZipFile(bundle) as archive:
-        manifest = json.loads(archive.read("manifest.json"))
+    manifest = manifest_of(bundle)
     assert manifest["eval_env"]["rays"] > 0
     trained_range = default_ray_range(robot_params(mission.robot.model, mission.robot.params))
     assert manifest["eval_env"]["ray_range"] == pytest.approx(trained_range)
