@@ -128,7 +128,8 @@ def recorded_eval_env(mission: MissionSpec) -> dict[str, Any]:
     document = eval_env_document(options)
     if options.rays and options.ray_range is None:
         spec = mission.robot
-        document["ray_range"] = default_ray_range(robot_params(spec.model, spec.params))
+        diagonal = mission.build_world().diagonal
+        document["ray_range"] = default_ray_range(robot_params(spec.model, spec.params), diagonal)
     return document
 
 
