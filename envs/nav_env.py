@@ -118,7 +118,7 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
             reach = (
                 options.ray_range
                 if options.ray_range is not None
-                else default_ray_range(robot.params, world.diagonal)
+                else default_ray_range(robot.params)
             )
             self.ray_caster = RayCaster(world, options.rays, reach)
         r_ball = first.guide.r

@@ -46,8 +46,8 @@ class EnvOptions:
     rays: int = 0
     """Number of lidar-like rays in the observation (0: none)."""
     ray_range: float | None = None
-    """Maximum ray range in metres. None: ``envs.rays.default_ray_range`` (at least 3.5 s at the
-    robot's top speed, an eighth of the world's diagonal where that is more)."""
+    """Maximum ray range in metres. None: the robot's (``envs.rays.default_ray_range``: 3.5 s at
+    its top speed), whatever the world's size."""
     curriculum: float = 0.0
     """Probability that an episode starts at a uniformly drawn r-ball of the guide (not the
     last) with the progress index set to it. Evaluation must pass 0."""

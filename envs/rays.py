@@ -25,18 +25,16 @@ FloatArray = NDArray[np.float64]
 
 
 RAY_SECONDS = 3.5
-"""The shortest default ray range in seconds at the robot's top speed: 3.5 m for the built-in
-robots (1 m/s), what an eighth of the diagonal gave in the 20 m worlds the defaults were
-measured in."""
+"""The default ray range in seconds at the robot's top speed: 3.5 m for the built-in robots
+(1 m/s), which the world-scaled default (an eighth of the diagonal) gave in the 20 m worlds the
+controllers and rewards were measured in."""
 
 
-def default_ray_range(params: RobotParams, world_diagonal: float) -> float:
-    """How far the rays of a robot of ``params`` see unless ``ray_range`` is set: at least
-    ``RAY_SECONDS`` of its top speed and two of its tightest turning radii (room to swerve round
-    what it sees), and an eighth of the world's diagonal where that is more (on a 30 m forest the
-    longer range trained the racecar sooner, ``bench/LEARNING.md``)."""
-    robot_s = max(RAY_SECONDS * top_speed(params), 2.0 * params.min_turning_radius())
-    return max(robot_s, world_diagonal / 8.0)
+def default_ray_range(params: RobotParams) -> float:
+    """How far the rays of a robot of ``params`` see unless ``ray_range`` is set:
+    ``RAY_SECONDS`` of its top speed, and at least two of its tightest turning radii (room to
+    swerve round what it sees)."""
+    return max(RAY_SECONDS * top_speed(params), 2.0 * params.min_turning_radius())
 
 
 def ray_directions(dim: int, count: int) -> FloatArray:

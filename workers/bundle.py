@@ -128,8 +128,7 @@ def recorded_eval_env(mission: MissionSpec) -> dict[str, Any]:
     document = eval_env_document(options)
     if options.rays and options.ray_range is None:
         spec = mission.robot
-        diagonal = mission.build_world().diagonal
-        document["ray_range"] = default_ray_range(robot_params(spec.model, spec.params), diagonal)
+        document["ray_range"] = default_ray_range(robot_params(spec.model, spec.params))
     return document
 
 

@@ -233,7 +233,7 @@ class ConcatenatedPolicy:
         """The evaluation env's options: the recorded ones (bundles written before they were
         recorded: the mission's defaults of this ltlnav). A bundle that does not record its
         rays' range predates ranges in the robot's terms: its policies saw an eighth of the
-        world's diagonal, however short."""
+        world's diagonal."""
         recorded = self.manifest.eval_env
         if recorded is not None:
             options = EnvOptions(**recorded)

@@ -24,7 +24,7 @@ from envs.nav_env import NavEnv
 from envs.options import EnvOptions
 from envs.rays import RAY_SECONDS, RayCaster, default_ray_range
 from envs.rewards import REWARD_MODES
-from envs.robots import RobotConfigError, robot_params
+from envs.robots import RobotConfigError, make_robot
 from envs.spec import RobotSpec
 from planner.decompose import SubTask
 from planner.geometry.shapes import Ball, Box, Polygon
@@ -697,29 +697,41 @@ def test_r_ball_within_clearance_keeps_every_ball_clear_of_obstacles(envs: list[
         EnvOptions(r_ball_within_clearance=1)  # type: ignore[arg-type]
 
 
-def square_diagonal(side: float, dim: int) -> float:
-    return side * math.sqrt(dim)
+def square_world(side: float, dim: int = 2) -> World:
+    return World(np.array([[0.0, side]] * dim), [], {})
 
 
 @pytest.mark.parametrize(
     ("model", "dim"), [("point", 2), ("point", 3), ("unicycle", 2), ("quadrotor", 3)]
 )
-def test_rays_see_the_robot_s_reach_and_further_in_a_large_world(model: str, dim: int) -> None:
-    params = robot_params(model)
-    assert default_ray_range(params, square_diagonal(10.0, dim)) == pytest.approx(RAY_SECONDS)
-    large = square_diagonal(60.0, dim)
-    assert default_ray_range(params, large) == pytest.approx(large / 8.0)
-    fast = robot_params(model, {"max_speed": 2.0})
-    assert default_ray_range(fast, square_diagonal(20.0, dim)) == pytest.approx(2.0 * RAY_SECONDS)
+def test_rays_see_in_the_robot_s_terms_whatever_the_world_s_size(model: str, dim: int) -> None:
+    for side in (10.0, 60.0):
+        robot = make_robot(model, square_world(side, dim), 0.2)
+        try:
+            assert default_ray_range(robot.params) == pytest.approx(RAY_SECONDS * 1.0)
+        finally:
+            robot.close()
+    fast = make_robot(model, square_world(20.0, dim), 0.2, {"max_speed": 2.0})
+    try:
+        assert default_ray_range(fast.params) == pytest.approx(RAY_SECONDS * 2.0)
+    finally:
+        fast.close()
 
 
 def test_a_car_that_turns_wide_sees_two_turning_radii_ahead() -> None:
-    diagonal = square_diagonal(20.0, 2)
-    assert default_ray_range(robot_params("racecar"), diagonal) == pytest.approx(diagonal / 8.0)
-    wide = robot_params("racecar", {"max_steering": 0.1})
-    rho = wide.min_turning_radius()
-    assert 2.0 * rho > max(RAY_SECONDS, diagonal / 8.0)
-    assert default_ray_range(wide, diagonal) == pytest.approx(2.0 * rho)
+    world = square_world(20.0)
+    default, wide = (
+        make_robot("racecar", world, 0.27),
+        make_robot("racecar", world, 0.27, {"max_steering": 0.1}),
+    )
+    try:
+        assert default_ray_range(default.params) == pytest.approx(RAY_SECONDS)
+        rho = wide.params.min_turning_radius()
+        assert 2.0 * rho > RAY_SECONDS
+        assert default_ray_range(wide.params) == pytest.approx(2.0 * rho)
+    finally:
+        default.close()
+        wide.close()
 
 
 def test_an_env_s_rays_default_to_the_robot_s_range_and_obey_ray_range(envs: list[NavEnv]) -> None:

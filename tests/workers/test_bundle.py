@@ -375,12 +375,11 @@ def test_a_bundle_s_policies_see_as_far_as_in_training_whatever_the_default(
     mission, _, _, bundle = trained
     manifest = manifest_of(bundle)
     assert manifest["eval_env"]["rays"] > 0
-    world_scaled = mission.build_world().diagonal / 8.0
-    params = robot_params(mission.robot.model, mission.robot.params)
-    trained_range = default_ray_range(params, 8.0 * world_scaled)
+    trained_range = default_ray_range(robot_params(mission.robot.model, mission.robot.params))
     assert manifest["eval_env"]["ray_range"] == pytest.approx(trained_range)
     assert ray_ranges(bundle) == [pytest.approx(trained_range)]
     # bundles written while the range was an eighth of the world's diagonal keep it
+    world_scaled = mission.build_world().diagonal / 8.0
     assert world_scaled != pytest.approx(trained_range)
     unresolved = {**manifest["eval_env"], "ray_range": None}
     old = rewrite(
