@@ -47,7 +47,7 @@ from envs.judge import RUNNING, SUCCESS, VIOLATION, AutomatonTracker, Stage
 from envs.leg import Leg
 from envs.observation import ObservationBuilder
 from envs.potential import GuidePotential
-from envs.rays import RayCaster, default_ray_range
+from envs.rays import RayCaster, ray_reach
 from envs.rewards import RewardMode
 from envs.robots import Robot
 from planner.geometry.pose import Pose
@@ -115,12 +115,7 @@ class NavEnv(gym.Env[np.ndarray, np.ndarray]):
         centers = np.concatenate([leg.guide.centers for leg in self.legs])
         self.ray_caster: RayCaster | None = None
         if options.rays:
-            reach = (
-                options.ray_range
-                if options.ray_range is not None
-                else default_ray_range(robot.params)
-            )
-            self.ray_caster = RayCaster(world, options.rays, reach)
+            self.ray_caster = RayCaster(world, options.rays, ray_reach(options, robot.params))
         r_ball = first.guide.r
         look = options.lookahead_range or 2.0 * r_ball * (options.lookahead + 1)
         self._obs = ObservationBuilder(

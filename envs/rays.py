@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -19,6 +20,9 @@ from envs.ray_cells import FastCell2, FastCell3, gap
 from envs.robots import RobotParams, top_speed
 from planner.geometry.shapes import Ball, Box, Polygon
 from planner.geometry.world import World
+
+if TYPE_CHECKING:
+    from envs.options import EnvOptions
 
 Float32Array = NDArray[np.float32]
 FloatArray = NDArray[np.float64]
@@ -35,6 +39,12 @@ def default_ray_range(params: RobotParams) -> float:
     ``RAY_SECONDS`` of its top speed, and at least two of its tightest turning radii (room to
     swerve round what it sees)."""
     return max(RAY_SECONDS * top_speed(params), 2.0 * params.min_turning_radius())
+
+
+def ray_reach(options: EnvOptions, params: RobotParams) -> float:
+    """How far the rays see under ``options`` for a robot of ``params``: ``ray_range``, else
+    ``default_ray_range``."""
+    return options.ray_range if options.ray_range is not None else default_ray_range(params)
 
 
 def ray_directions(dim: int, count: int) -> FloatArray:

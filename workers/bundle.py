@@ -25,7 +25,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from envs.options import EnvOptions
-from envs.rays import default_ray_range
+from envs.rays import ray_reach
 from envs.robots import robot_params
 from planner.geometry.world import World
 from planner.guidance import Guide
@@ -126,9 +126,9 @@ def recorded_eval_env(mission: MissionSpec) -> dict[str, Any]:
     resolved, so that a later default cannot change what the bundle's policies observe."""
     options = mission.training.eval_env_options(mission.robot.model)
     document = eval_env_document(options)
-    if options.rays and options.ray_range is None:
+    if options.rays:
         spec = mission.robot
-        document["ray_range"] = default_ray_range(robot_params(spec.model, spec.params))
+        document["ray_range"] = ray_reach(options, robot_params(spec.model, spec.params))
     return document
 
 
