@@ -172,23 +172,52 @@ def course(
     within = opts.r_ball is None and opts.r_ball_within_clearance
     if within and plan is not None and plan.clearance > 0:
         r_ball = min(r_ball, plan.clearance)
-    listed = plan.subtasks if plan is not None else []
-    chosen = next((i for i, s in enumerate(listed) if s is subtasks[0]), None)
-    pool = list(plan.subtasks) if plan is not None and chosen is not None else subtasks
     given = float(spec.start[world.dim]) if len(spec.start) > world.dim else None
-    opening = opening_pose(pool, start, given)
-    rho = _turning_radius(opts, spec)
-    if rho > 0:
-        steps = clearances(spec.radius, plan.hold if plan is not None else spec.radius)
-        pool = redraw_course(world, pool, opening, rho, steps)
+    pool, chosen, opening, dense = _pool(world, spec, subtasks, plan, opts)
+    if dense:
         subtasks = pool if whole_lasso else [pool[chosen or 0]]
     legs = build_course(
-        world, spec.radius, subtasks, r_ball, dense=rho > 0, window=opts.progress_window
+        world, spec.radius, subtasks, r_ball, dense=dense, window=opts.progress_window
     )
     handover_of = chosen if opts.handover and not whole_lasso else None
     guide_heading = legs[0].headings[0]
     real = real_starts(world, pool, subtasks[0], handover_of, opening, start, given, guide_heading)
     return legs, real
+
+
+def _pool(
+    world: World,
+    spec: RobotSpec,
+    subtasks: list[SubTask],
+    plan: MissionPlan | None,
+    opts: EnvOptions,
+) -> tuple[list[SubTask], int | None, Pose, bool]:
+    """The course ``subtasks[0]`` belongs to (every sub-task of ``plan``, else ``subtasks``),
+    its position there, the course's opening pose, and whether the course was redrawn for a
+    car (``opts.drivable_guide``; the plan's record of drawn paths when it has one)."""
+    listed = plan.subtasks if plan is not None else []
+    chosen = next((i for i, s in enumerate(listed) if s is subtasks[0]), None)
+    pool = list(plan.subtasks) if plan is not None and chosen is not None else subtasks
+    given = float(spec.start[world.dim]) if len(spec.start) > world.dim else None
+    opening = opening_pose(pool, np.asarray(spec.position(), dtype=float), given)
+    rho = _turning_radius(opts, spec)
+    if rho <= 0:
+        return pool, chosen, opening, False
+    if plan is not None and chosen is not None and plan.drawn is not None:
+        return list(plan.drawn), chosen, opening, True
+    steps = clearances(spec.radius, plan.hold if plan is not None else spec.radius)
+    return redraw_course(world, pool, opening, rho, steps), chosen, opening, True
+
+
+def drawn_subtasks(
+    mission: MissionLike, plan: MissionPlan, options: EnvOptions, world: World | None = None
+) -> list[SubTask] | None:
+    """``plan``'s sub-tasks as a car's envs drive them under ``options`` (the redrawn paths of
+    ``drivable_guide``); None where the envs drive the plan's polylines."""
+    if world is None:
+        world = mission.world.build(keep_clear=[mission.robot.position()])
+    pool, _, _, dense = _pool(world, mission.robot, list(plan.subtasks), plan, options)
+    return pool if dense else None
 
 
 def subtask_guides(

@@ -52,6 +52,8 @@ class MissionPlan:
     was given). ``clearance`` is the distance the lasso keeps from obstacles (the robot radius,
     plus the planner margin when it fit) and ``hold`` the distance it was pushed to wherever the
     free space leaves room (the radius plus the whole margin; at least ``clearance``).
+    ``drawn`` fixes the drivable paths a car's envs drive for ``subtasks`` (a bundle records
+    the ones its policies were trained on); None: the envs redraw them (``envs.drivable``).
     """
 
     formula: str
@@ -66,6 +68,7 @@ class MissionPlan:
     translation_seconds: float
     clearance: float = 0.0
     hold: float = 0.0
+    drawn: list[SubTask] | None = None
 
     def __post_init__(self) -> None:
         self.hold = max(self.hold, self.clearance)

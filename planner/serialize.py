@@ -58,7 +58,7 @@ def plan_to_dict(plan: MissionPlan) -> dict[str, Any]:
     """Everything of a ``MissionPlan`` as JSON: automata, lasso, sub-tasks, radii (exact floats,
     so a job rebuilt from it trains on the very same guide)."""
     lasso = plan.lasso
-    return {
+    doc: dict[str, Any] = {
         "formula": plan.formula,
         "start": plan.start.tolist(),
         "nba": buchi_to_dict(plan.nba),
@@ -72,18 +72,7 @@ def plan_to_dict(plan: MissionPlan) -> dict[str, Any]:
             "suffix_cost": lasso.suffix_cost,
             "cost": lasso.cost,
         },
-        "subtasks": [
-            {
-                "index": s.index,
-                "phase": s.phase,
-                "goal": s.goal,
-                "start": s.start.tolist(),
-                "path": s.path.tolist(),
-                "nba_state": s.nba_state,
-                "next_nba_state": s.next_nba_state,
-            }
-            for s in plan.subtasks
-        ],
+        "subtasks": [subtask_to_dict(s) for s in plan.subtasks],
         "eta": plan.eta,
         "r_ball": plan.r_ball,
         "seconds": plan.seconds,
@@ -91,6 +80,39 @@ def plan_to_dict(plan: MissionPlan) -> dict[str, Any]:
         "clearance": plan.clearance,
         "hold": plan.hold,
     }
+    if plan.drawn is not None:
+        doc["drawn"] = [subtask_to_dict(s) for s in plan.drawn]
+    return doc
+
+
+def subtask_to_dict(sub: SubTask) -> dict[str, Any]:
+    """One sub-task as JSON (``reverse`` only when a redrawn guide backs up)."""
+    doc: dict[str, Any] = {
+        "index": sub.index,
+        "phase": sub.phase,
+        "goal": sub.goal,
+        "start": sub.start.tolist(),
+        "path": sub.path.tolist(),
+        "nba_state": sub.nba_state,
+        "next_nba_state": sub.next_nba_state,
+    }
+    if sub.reverse:
+        doc["reverse"] = sub.reverse
+    return doc
+
+
+def subtask_from_dict(doc: dict[str, Any]) -> SubTask:
+    """The inverse of ``subtask_to_dict``."""
+    return SubTask(
+        index=int(doc["index"]),
+        phase=doc["phase"],
+        goal=str(doc["goal"]),
+        start=np.asarray(doc["start"], dtype=float),
+        path=np.asarray(doc["path"], dtype=float),
+        nba_state=int(doc["nba_state"]),
+        next_nba_state=int(doc["next_nba_state"]),
+        reverse=int(doc.get("reverse", 0)),
+    )
 
 
 def plan_from_dict(doc: dict[str, Any]) -> MissionPlan:
@@ -110,22 +132,12 @@ def plan_from_dict(doc: dict[str, Any]) -> MissionPlan:
             suffix_cost=float(lasso["suffix_cost"]),
             cost=float(lasso["cost"]),
         ),
-        subtasks=[
-            SubTask(
-                index=int(s["index"]),
-                phase=s["phase"],
-                goal=str(s["goal"]),
-                start=np.asarray(s["start"], dtype=float),
-                path=np.asarray(s["path"], dtype=float),
-                nba_state=int(s["nba_state"]),
-                next_nba_state=int(s["next_nba_state"]),
-            )
-            for s in doc["subtasks"]
-        ],
+        subtasks=[subtask_from_dict(s) for s in doc["subtasks"]],
         eta=float(doc["eta"]),
         r_ball=float(doc["r_ball"]),
         seconds=float(doc["seconds"]),
         translation_seconds=float(doc["translation_seconds"]),
         clearance=float(doc.get("clearance", 0.0)),
         hold=float(doc.get("hold", doc.get("clearance", 0.0))),
+        drawn=[subtask_from_dict(s) for s in doc["drawn"]] if "drawn" in doc else None,
     )

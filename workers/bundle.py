@@ -24,9 +24,11 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
+from envs.factory import drawn_subtasks
 from envs.options import EnvOptions
 from envs.rays import ray_reach
 from envs.robots import robot_params
+from planner.decompose import SubTask
 from planner.geometry.world import World
 from planner.guidance import Guide
 from planner.plan import MissionPlan
@@ -39,6 +41,7 @@ from workers.manifest import (
     FORMAT_VERSION,
     MANIFEST,
     BundleError,
+    DrawnGuide,
     Manifest,
     SubtaskEntry,
 )
@@ -69,13 +72,17 @@ def manifest_for(
     seeds: Sequence[int],
     files: Sequence[str],
     guides: Sequence[Guide],
+    drawn: Sequence[SubTask] | None = None,
 ) -> Manifest:
     """The manifest of a bundle of ``results`` (one per sub-task, in order, trained on
-    ``guides``)."""
+    ``guides``, a car's along the ``drawn`` paths)."""
     training = mission.training
     kwargs = training.policy_kwargs()
     if training.hyperparams.get("use_sde"):
         kwargs["use_sde"] = True
+    records: Sequence[DrawnGuide | None] = (
+        [drawn_guide(sub) for sub in drawn] if drawn is not None else [None] * len(plan.subtasks)
+    )
     entries = [
         SubtaskEntry(
             index=sub.index,
@@ -85,6 +92,7 @@ def manifest_for(
             path=sub.path.tolist(),
             r_ball=guide.r,
             guide_centers=guide.centers.tolist(),
+            drawn=record,
             model=f"models/subtask_{sub.index}.zip",
             algorithm=training.algorithm,
             policy_kwargs=kwargs,
@@ -96,7 +104,9 @@ def manifest_for(
             curve=result.curve,
             evaluation=result.final,
         )
-        for sub, guide, result, seed in zip(plan.subtasks, guides, results, seeds, strict=True)
+        for sub, guide, result, seed, record in zip(
+            plan.subtasks, guides, results, seeds, records, strict=True
+        )
     ]
     return Manifest(
         format=FORMAT,
@@ -114,6 +124,11 @@ def manifest_for(
         eval_env=recorded_eval_env(mission),
         files=list(files),
     )
+
+
+def drawn_guide(sub: SubTask) -> DrawnGuide:
+    """A redrawn sub-task's record in the manifest."""
+    return DrawnGuide(start=sub.start.tolist(), path=sub.path.tolist(), reverse=sub.reverse)
 
 
 def eval_env_document(options: EnvOptions) -> dict[str, Any]:
@@ -148,6 +163,8 @@ def write_bundle(
     out.parent.mkdir(parents=True, exist_ok=True)
     world = mission.build_world()
     guides = mission.trained_guides(plan)
+    options = mission.training.eval_env_options(mission.robot.model)
+    drawn = drawn_subtasks(mission, plan, options, world)
     with tempfile.TemporaryDirectory(dir=out.parent) as tmp:
         pictures = {
             "plan.png": lambda p: plot_plan(world, plan, p, title=mission.name, guides=guides),
@@ -157,7 +174,7 @@ def write_bundle(
         for name, draw in pictures.items():
             draw(Path(tmp) / name)
         files = [*pictures, "README.md"]
-        manifest = manifest_for(mission, plan, results, evaluation, seeds, files, guides)
+        manifest = manifest_for(mission, plan, results, evaluation, seeds, files, guides, drawn)
         partial = out.with_name(out.name + ".partial")
         with zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as archive:
             archive.writestr(MANIFEST, manifest.model_dump_json(indent=1, exclude={"lasso"}))

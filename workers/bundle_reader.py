@@ -37,7 +37,7 @@ from envs.errors import EnvConfigError
 from envs.factory import subtask_guides
 from envs.mission_env import MissionEnv
 from envs.options import EnvOptions
-from planner.decompose import subtask_at
+from planner.decompose import SubTask, subtask_at
 from planner.plan import MissionPlan
 from planner.serialize import plan_from_dict
 from workers.evaluation import MissionEvaluation, rollout_mission
@@ -47,6 +47,7 @@ from workers.manifest import (
     MANIFEST,
     READABLE_VERSIONS,
     BundleError,
+    DrawnGuide,
     Manifest,
     SubtaskEntry,
 )
@@ -178,6 +179,39 @@ _TORCH_NAMES = {
 }
 
 
+def with_drawn_guides(
+    path: Path | str, plan: MissionPlan, entries: list[SubtaskEntry]
+) -> MissionPlan:
+    """``plan`` fixed to the drawn paths the manifest records (a car's, version 3 on), so its
+    rollouts drive the guides its policies were trained on whatever today's redraw does."""
+    records = [entry.drawn for entry in entries]
+    if all(record is None for record in records):
+        return plan
+    if any(record is None for record in records):
+        raise BundleError(f"{path}: some sub-tasks record their drawn guide and others do not")
+    dim = plan.start.shape[0]
+    drawn = [
+        _drawn_subtask(path, sub, record, dim)
+        for sub, record in zip(plan.subtasks, records, strict=True)
+        if record is not None
+    ]
+    return dataclasses.replace(plan, drawn=drawn)
+
+
+def _drawn_subtask(path: Path | str, sub: SubTask, record: DrawnGuide, dim: int) -> SubTask:
+    where = f"{path}: sub-task {sub.index}'s drawn guide"
+    try:
+        start = np.asarray(record.start, dtype=float)
+        points = np.asarray(record.path, dtype=float)
+    except ValueError as err:
+        raise BundleError(f"{where} is malformed ({err})") from err
+    if start.shape != (dim,) or points.ndim != 2 or points.shape[1] != dim or not len(points):
+        raise BundleError(f"{where} is not a {dim}D path")
+    if not 0 <= record.reverse < len(points):
+        raise BundleError(f"{where} backs up past its end")
+    return dataclasses.replace(sub, start=start, path=points, reverse=record.reverse)
+
+
 class ConcatenatedPolicy:
     """The mission's policy: one sub-policy per sub-task, run in lasso order, suffix repeated.
 
@@ -213,6 +247,7 @@ class ConcatenatedPolicy:
             raise BundleError(f"{path}: the bundled plan is malformed ({err!r})") from err
         if len(plan.subtasks) != len(manifest.subtasks):
             raise BundleError(f"{path}: the plan and the manifest list different sub-tasks")
+        plan = with_drawn_guides(path, plan, manifest.subtasks)
         if manifest.eval_env is not None:
             try:
                 EnvOptions(**manifest.eval_env)
@@ -223,8 +258,9 @@ class ConcatenatedPolicy:
         if redrawn:
             warnings.warn(
                 f"{path}: this ltlnav draws the guides of sub-tasks {redrawn} differently from "
-                "those they were trained on (the bundle predates a change to how guides are "
-                "drawn); its rollouts follow today's guides",
+                "those they were trained on (the bundle was written before bundles recorded "
+                "their guides and before a change to how they are drawn); its rollouts follow "
+                "today's guides",
                 stacklevel=2,
             )
         return policy

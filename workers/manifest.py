@@ -13,15 +13,27 @@ from pydantic import BaseModel, ConfigDict
 from planner.errors import LtlnavError
 
 FORMAT = "ltlnav-bundle"
-FORMAT_VERSION = 2
-"""Version 2 keeps the lasso once, in ``plan``; version 1 also had it at the top level."""
-READABLE_VERSIONS = frozenset({1, 2})
+FORMAT_VERSION = 3
+"""Version 3 records a car's drawn guides (``SubtaskEntry.drawn``); version 2 keeps the lasso
+once, in ``plan``; version 1 also had it at the top level."""
+READABLE_VERSIONS = frozenset({1, 2, 3})
 """Manifest versions this ltlnav reads."""
 MANIFEST = "manifest.json"
 
 
 class BundleError(LtlnavError):
     """A file that is not a valid ltlnav bundle (corrupted, foreign, or unsafe)."""
+
+
+class DrawnGuide(BaseModel):
+    """The drivable path a car's policy was trained to follow, redrawn from the plan's polyline
+    (``envs.drivable``): driven backwards over ``path[: reverse + 1]``."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    start: list[float]
+    path: list[list[float]]
+    reverse: int = 0
 
 
 class SubtaskEntry(BaseModel):
@@ -39,6 +51,9 @@ class SubtaskEntry(BaseModel):
     guide_centers: list[list[float]]
     """Centres of the r-balls of the guide the policy followed (the polyline's, or the redrawn
     path's under ``eval_env.drivable_guide``)."""
+    drawn: DrawnGuide | None = None
+    """A car's redrawn path (version 3 on): its rollouts drive it rather than today's redraw.
+    None: the plan's polyline is driven, or the bundle predates the record."""
     model: str
     algorithm: Literal["sac", "td3", "ddpg", "ppo"]
     policy_kwargs: dict[str, Any]
@@ -54,7 +69,8 @@ class SubtaskEntry(BaseModel):
 
 
 class Manifest(BaseModel):
-    """``manifest.json`` of a bundle (format ``ltlnav-bundle``, version 1)."""
+    """``manifest.json`` of a bundle (format ``ltlnav-bundle``, a version of
+    ``READABLE_VERSIONS``)."""
 
     model_config = ConfigDict(extra="forbid")
 

@@ -83,7 +83,8 @@ def test_bundle_members_and_manifest(
     expected = {f"models/subtask_{k}.zip" for k in range(len(plan.subtasks))}
     assert expected | {"manifest.json", "README.md", "plan.png", "learning_curves.png"} <= names
     assert "rollout.png" in names
-    assert manifest["format"] == "ltlnav-bundle" and manifest["format_version"] == 2
+    assert manifest["format"] == "ltlnav-bundle" and manifest["format_version"] == 3
+    assert all(s["drawn"] is None for s in manifest["subtasks"])  # a point robot's polylines
     assert manifest["mission"]["task"] == mission.task
     assert manifest["automaton_hoa"].startswith("HOA: v1")
     assert manifest["seeds"]["subtasks"] == [0, 1, 2, 3]
