@@ -309,7 +309,7 @@ class Job:
 # ------------------------------------------------------------------------------ setup
 def _units(cfg: Config, subtask: int) -> tuple[Any, Any, Any, list[tuple[str, Any]]]:
     """Mission, world, plan and the (label, SubTask) units to train for ``subtask``."""
-    from envs.factory import split_subtask
+    from planner.decompose import split_subtask
     from planner.plan import plan_mission
     from workers.mission import load_mission
 

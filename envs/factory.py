@@ -10,7 +10,6 @@ every option; ``build_course`` turns sub-tasks into the env's checked guides (``
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, Protocol
@@ -299,38 +298,6 @@ def build_course(
         legs.append(Leg(sub, guide, tracker, offset, rest, goal, headings, track))
         offset += guide.num_balls
     return legs
-
-
-def split_subtask(subtask: SubTask, max_length: float) -> list[SubTask]:
-    """``subtask`` cut into consecutive pieces of equal path length, at most ``max_length``
-    metres each (shorter legs for very long guides: one agent per piece). Every piece but the
-    last has no goal region (``goal == ""``: its episode succeeds in the last r-ball of its
-    path) and stays in the sub-task's automaton state; the last piece keeps the goal and the
-    transition. Indices are left as they are: renumber them if the pieces join a plan."""
-    if not max_length > 0:
-        raise EnvConfigError("max_length", f"must be > 0, got {max_length}")
-    path = np.asarray(subtask.path, dtype=float)
-    steps = np.linalg.norm(np.diff(path, axis=0), axis=1)
-    cum = np.concatenate([[0.0], np.cumsum(steps)])
-    count = max(1, math.ceil(cum[-1] / max_length - 1e-9))
-    cuts = np.linspace(0.0, cum[-1], count + 1)
-    inner = [np.interp(cuts[1:-1], cum, path[:, j]) for j in range(path.shape[1])]
-    knots = [path[0], *np.stack(inner, axis=1), path[-1]]
-    pieces: list[SubTask] = []
-    for k in range(count):
-        between = path[(cum > cuts[k]) & (cum < cuts[k + 1])]
-        piece = np.vstack([knots[k], between, knots[k + 1]])
-        last = k == count - 1
-        pieces.append(
-            dataclasses.replace(
-                subtask,
-                start=piece[0].copy(),
-                path=piece,
-                goal=subtask.goal if last else "",
-                next_nba_state=subtask.next_nba_state if last else subtask.nba_state,
-            )
-        )
-    return pieces
 
 
 def _turning_radius(options: EnvOptions, spec: RobotSpec) -> float:

@@ -18,6 +18,8 @@ entry made the automaton move:
 
 Zero-length pieces are merged into their successor. Prefix sub-tasks come first, then suffix
 sub-tasks; the suffix starts at the accepting state and point where the prefix ended.
+``split_into_legs`` cuts long sub-tasks into legs (``planner.leg_length``): every leg but the
+last has the empty goal and ends in the last r-ball of its guide.
 
 A rollout of the mission drives them in *lasso order* (:func:`lasso_stages`): the prefix
 sub-tasks once, then the suffix sub-tasks over and over; the sub-task driven at each stage is
@@ -26,6 +28,8 @@ sub-tasks once, then the suffix sub-tasks over and over; the sub-task driven at 
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
@@ -153,6 +157,45 @@ def decompose(lasso: Lasso, nba: Buchi, world: World) -> list[SubTask]:
                 )
             )
     return out
+
+
+def split_subtask(subtask: SubTask, max_length: float) -> list[SubTask]:
+    """``subtask`` cut into consecutive pieces of equal path length, at most ``max_length``
+    metres each (legs of a long guide, one agent each). Every piece but the last has no goal
+    region (``goal == ""``: its episode succeeds in the last r-ball of its path) and stays in
+    the sub-task's automaton state; the last piece keeps the goal and the transition. Indices
+    are left as they are (``split_into_legs`` renumbers them)."""
+    if not max_length > 0:
+        raise ValueError(f"max_length must be > 0, got {max_length}")
+    path = np.asarray(subtask.path, dtype=float)
+    steps = np.linalg.norm(np.diff(path, axis=0), axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(steps)])
+    count = max(1, math.ceil(cum[-1] / max_length - 1e-9))
+    cuts = np.linspace(0.0, cum[-1], count + 1)
+    inner = [np.interp(cuts[1:-1], cum, path[:, j]) for j in range(path.shape[1])]
+    knots = [path[0], *np.stack(inner, axis=1), path[-1]]
+    pieces: list[SubTask] = []
+    for k in range(count):
+        between = path[(cum > cuts[k]) & (cum < cuts[k + 1])]
+        piece = np.vstack([knots[k], between, knots[k + 1]])
+        last = k == count - 1
+        pieces.append(
+            dataclasses.replace(
+                subtask,
+                start=piece[0].copy(),
+                path=piece,
+                goal=subtask.goal if last else "",
+                next_nba_state=subtask.next_nba_state if last else subtask.nba_state,
+            )
+        )
+    return pieces
+
+
+def split_into_legs(subtasks: Sequence[SubTask], max_length: float) -> list[SubTask]:
+    """``subtasks`` with every one whose path is longer than ``max_length`` cut into legs
+    (``split_subtask``), in order and numbered anew."""
+    legs = [leg for sub in subtasks for leg in split_subtask(sub, max_length)]
+    return [dataclasses.replace(leg, index=k) for k, leg in enumerate(legs)]
 
 
 def phases(subtasks: Sequence[SubTask]) -> tuple[list[int], list[int]]:

@@ -10,6 +10,7 @@ Times are CPU seconds (``time.process_time``): the machine is shared and wall ti
 
 from __future__ import annotations
 
+import itertools
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -17,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from planner.collector import collection_paused
-from planner.decompose import SubTask, decompose
+from planner.decompose import SubTask, decompose, split_into_legs
 from planner.errors import PlanningError, unsatisfiable
 from planner.geometry.world import World
 from planner.ltl.automaton import Buchi
@@ -188,6 +189,8 @@ def _plan(
         world, pruned, np.asarray(start, dtype=float), clearance, opts, rng, give_up_cut_off, hold
     )
     subtasks = decompose(lasso, pruned, world)
+    if opts.leg_length is not None:
+        subtasks = split_into_legs(subtasks, opts.leg_length)
     eta = opts.eta if opts.eta is not None else default_eta(world)
     return MissionPlan(
         formula=task,
@@ -283,6 +286,29 @@ def verify_plan(plan: MissionPlan, world: World, clearance: float) -> list[str]:
     return problems
 
 
+def _without_leg_knots(subs: list[SubTask], path: np.ndarray) -> np.ndarray | None:
+    """The sub-tasks' paths joined, without the points where ``planner.leg_length`` cut a
+    segment of ``path`` (None when such a point is off the segment it cut)."""
+    points = list(np.asarray(subs[0].path, dtype=float))
+    knots: list[int] = []
+    for before, after in itertools.pairwise(subs):
+        knot = points[-1]
+        if before.goal == "" and not np.any(np.all(np.isclose(path, knot), axis=1)):
+            knots.append(len(points) - 1)
+        points.extend(np.asarray(after.path[1:], dtype=float))
+    for k in knots:
+        if not 0 < k < len(points) - 1 or not _on_segment(points[k], points[k - 1], points[k + 1]):
+            return None
+    cut = set(knots)
+    return np.array([p for k, p in enumerate(points) if k not in cut])
+
+
+def _on_segment(point: np.ndarray, a: np.ndarray, b: np.ndarray) -> bool:
+    ab = b - a
+    t = float(np.clip(np.dot(point - a, ab) / max(float(np.dot(ab, ab)), 1e-300), 0.0, 1.0))
+    return bool(np.linalg.norm(a + t * ab - point) <= 1e-9 * max(1.0, float(np.linalg.norm(ab))))
+
+
 def _check_subtasks(plan: MissionPlan, world: World, pre: np.ndarray, suf: np.ndarray) -> list[str]:
     problems: list[str] = []
     for phase, path in (("prefix", pre), ("suffix", suf)):
@@ -291,8 +317,8 @@ def _check_subtasks(plan: MissionPlan, world: World, pre: np.ndarray, suf: np.nd
             problems.append(f"the {phase} has no sub-task")
         if not subs:
             continue
-        joined = np.vstack([subs[0].path] + [s.path[1:] for s in subs[1:]])
-        if joined.shape != path.shape or not np.allclose(joined, path):
+        joined = _without_leg_knots(subs, path)
+        if joined is None or joined.shape != path.shape or not np.allclose(joined, path):
             problems.append(f"the {phase} sub-task paths do not chain into the {phase}")
     for i, s in enumerate(plan.subtasks):
         if s.index != i:

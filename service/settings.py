@@ -119,6 +119,10 @@ class Settings(BaseSettings):
     """States of a task's Büchi automaton pruned for its world, checked when the mission is
     planned (the plan fails with a reason naming this setting)."""
 
+    max_subtasks: int = Field(default=_LIMITS.max_subtasks, ge=1)
+    """Sub-tasks of a plan, legs of ``planner.leg_length`` included (one training job each),
+    checked when the mission is planned."""
+
     max_timesteps: int = Field(default=_LIMITS.max_timesteps, ge=1)
     """``training.n_timesteps`` and ``training.handover_steps`` (env steps per sub-task); a
     replay buffer (``buffer_size``) or PPO rollout (``n_steps``) is at most ``n_timesteps``."""

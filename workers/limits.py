@@ -45,6 +45,10 @@ class AdmissionLimits:
     """States of the task's Büchi automaton pruned for the world, checked when the mission
     is planned (TL-RRT* searches the product of the world and this automaton)."""
 
+    max_subtasks: int = 200
+    """Sub-tasks of a plan (legs of ``planner.leg_length`` included), one training job each;
+    checked when the mission is planned."""
+
     max_timesteps: int = 2_000_000
     """``training.n_timesteps`` and ``training.handover_steps``: env steps per sub-task."""
 
@@ -170,3 +174,15 @@ def automaton_problems(states: int, pruned: int, limits: AdmissionLimits) -> lis
             "split the mission or simplify the formula",
         )
     ]
+
+
+def subtask_problems(
+    count: int, leg_length: float | None, limits: AdmissionLimits
+) -> list[Problem]:
+    """Why a plan of ``count`` sub-tasks (cut into legs of ``leg_length``) is too many to train."""
+    message = count_over(count, "sub-tasks", "max_subtasks", limits)
+    if message is None:
+        return []
+    if leg_length is not None:
+        return [("planner.leg_length", f"its plan {message}: longer legs make fewer")]
+    return [("task", f"its plan {message}: split the mission")]

@@ -51,7 +51,7 @@ from workers.handover_repair import (
 )
 from workers.hooks import TrainingHooks
 from workers.jobs import SubtaskJob, job_seed
-from workers.limits import AdmissionLimits
+from workers.limits import AdmissionLimits, subtask_problems
 from workers.mission import MissionError, MissionSpec, parse_mission
 from workers.policy_act import deterministic_act
 from workers.training import ALGORITHMS, TrainResult, train_subtask
@@ -286,7 +286,8 @@ def stored_or_new_plan(
     (training options aside), else planned, verified and stored there. A new plan is refused
     (``MissionError`` on ``task``) when the formula's automaton, pruned for the world, has more
     states than ``limits.max_automaton_states`` (default ``AdmissionLimits()``), or its
-    translation outgrows ``translation_budget``."""
+    translation outgrows ``translation_budget``, and when it has more sub-tasks than
+    ``limits.max_subtasks`` (on ``planner.leg_length`` when legs made them)."""
     stored = folder / PLAN_FILE
     options = mission.planner_options()
     planning = mission.model_dump(mode="json", exclude={"training"})
@@ -299,8 +300,12 @@ def stored_or_new_plan(
             warnings.warn(f"planning anew: {stored} holds no usable plan ({error!r})", stacklevel=2)
     world = mission.build_world()
     radius = mission.robot.radius
-    nba = admitted_automaton(mission, world, limits or AdmissionLimits())
+    limits = limits or AdmissionLimits()
+    nba = admitted_automaton(mission, world, limits)
     plan = plan_mission(world, mission.task, mission.robot.position(), radius, options, nba)
+    too_many = subtask_problems(len(plan.subtasks), options.leg_length, limits)
+    if too_many:
+        raise MissionError(too_many)
     problems = verify_plan(plan, world, radius)
     if problems:
         raise PlanningError("the plan failed its own check: " + "; ".join(problems))

@@ -80,6 +80,14 @@ class PlannerSpec(BaseModel):
         "the robot's own (0.3 for the point robot, the quadrotor and the racecar, whose "
         "feed-forward cuts the corners of a guide that grazes an obstacle; 0 for the unicycle).",
     )
+    leg_length: float | None = Field(
+        None,
+        gt=0,
+        description="Cut every sub-task whose guide is longer than this (workspace units) into "
+        "legs of equal length, at most this long, each trained by its own agent and chained "
+        "like sub-tasks (a leg ends in the last r-ball of its guide, the last one in the goal "
+        "region). Default: none; bench/LEARNING.md compares legs with the feed-forwards.",
+    )
     shortcut: bool = Field(
         True,
         description="Shorten the lasso by shortcutting waypoints while the automaton run and "

@@ -19,14 +19,14 @@ import pytest
 from stable_baselines3.common.env_checker import check_env
 
 from envs.errors import EnvConfigError
-from envs.factory import ENV_ID, make_env, split_subtask
+from envs.factory import ENV_ID, make_env
 from envs.nav_env import NavEnv
 from envs.options import EnvOptions
 from envs.rays import RAY_SECONDS, RayCaster, default_ray_range
 from envs.rewards import REWARD_MODES
 from envs.robots import RobotConfigError, make_robot
 from envs.spec import RobotSpec
-from planner.decompose import SubTask
+from planner.decompose import SubTask, split_subtask
 from planner.geometry.shapes import Ball, Box, Polygon
 from planner.geometry.world import World
 from planner.plan import MissionPlan, plan_mission
@@ -676,7 +676,7 @@ def test_split_subtask_into_shorter_legs(envs: list[NavEnv]) -> None:
     env.reset(seed=0, options={"position": end - 0.05 * (end - pieces[0].path[-2])})
     _, reward, terminated, _, info = env.step(np.zeros(2))
     assert terminated and info["is_success"] is True and reward == 20.0 and info["d"] == 0.0
-    with pytest.raises(EnvConfigError, match="max_length"):
+    with pytest.raises(ValueError, match="max_length"):
         split_subtask(sub, 0.0)
 
 

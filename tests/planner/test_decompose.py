@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
+import math
 
 import numpy as np
 import pytest
@@ -13,6 +15,7 @@ from planner.geometry.world import World
 from planner.ltl.automaton import Buchi, Edge
 from planner.ltl.guard import Cube, Guard
 from planner.ltl.translate import translate
+from planner.plan import plan_mission, verify_plan
 from planner.search.planner_spec import PlannerSpec
 from planner.search.tl_rrt_star import Lasso, make_lasso, plan_lasso
 
@@ -204,3 +207,45 @@ def test_lasso_order_runs_the_prefix_once_then_cycles_the_suffix() -> None:
     assert [subtask_at(subs, n) for n in range(7)] == [0, 1, 2, 3, 2, 3, 2]
     finite = subs[:2]
     assert [subtask_at(finite, n) for n in range(4)] == [0, 1, 1, 1]
+
+
+def path_length(path: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
+
+
+def test_long_sub_tasks_are_cut_into_chained_legs_of_at_most_the_leg_length() -> None:
+    world = World(
+        np.array([[0.0, 20.0], [0.0, 10.0]]),
+        [Box(np.array([9.0, 0.0]), np.array([11.0, 7.0]))],
+        {"g1": Ball(np.array([18.5, 1.5]), 0.8), "g2": Ball(np.array([1.5, 8.5]), 0.8)},
+    )
+    task, start = "[]<>g1 && []<>g2", np.array([1.0, 1.0])
+    whole = plan_mission(world, task, start, 0.3, PlannerSpec(seed=2))
+    legged = plan_mission(world, task, start, 0.3, PlannerSpec(seed=2, leg_length=4.0))
+    assert verify_plan(legged, world, 0.3) == []
+    assert [s.index for s in legged.subtasks] == list(range(len(legged.subtasks)))
+    assert len(legged.subtasks) > len(whole.subtasks)
+    legs = iter(legged.subtasks)
+    for sub in whole.subtasks:
+        count = math.ceil(path_length(sub.path) / 4.0 - 1e-9)
+        mine = [next(legs) for _ in range(count)]
+        assert all(leg.phase == sub.phase for leg in mine)
+        assert all(path_length(leg.path) <= 4.0 + 1e-9 for leg in mine)
+        assert sum(path_length(leg.path) for leg in mine) == pytest.approx(path_length(sub.path))
+        np.testing.assert_allclose(mine[0].start, sub.start)
+        np.testing.assert_allclose(mine[-1].path[-1], sub.path[-1])
+        for a, b in itertools.pairwise(mine):
+            np.testing.assert_allclose(a.path[-1], b.start)
+            assert (a.goal, a.nba_state, a.next_nba_state) == ("", sub.nba_state, sub.nba_state)
+        assert (mine[-1].goal, mine[-1].next_nba_state) == (sub.goal, sub.next_nba_state)
+    assert next(legs, None) is None
+    first, second, *rest = legged.subtasks
+    assert first.goal == "" and second.phase == first.phase
+    off = first.path[-1] + np.array([0.0, 0.01])
+    bent = [
+        dataclasses.replace(first, path=np.vstack([first.path[:-1], off])),
+        dataclasses.replace(second, start=off, path=np.vstack([off, second.path[1:]])),
+        *rest,
+    ]
+    problems = verify_plan(dataclasses.replace(legged, subtasks=bent), world, 0.3)
+    assert "the prefix sub-task paths do not chain into the prefix" in problems

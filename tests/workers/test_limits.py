@@ -186,6 +186,22 @@ def test_a_large_automaton_fails_the_plan_naming_the_limit(tmp_path: Path) -> No
     assert not (tmp_path / "plan.json").exists()
 
 
+def test_a_plan_of_too_many_legs_fails_naming_the_limit_and_the_leg_length(
+    tmp_path: Path,
+) -> None:
+    spec = admit(with_("planner.leg_length", 0.5), LIMITS)
+    with pytest.raises(MissionError) as caught:
+        stored_or_new_plan(spec, tmp_path, AdmissionLimits(max_subtasks=10))
+    ((field, message),) = caught.value.problems
+    assert field == "planner.leg_length"
+    assert "over the limit 10 (LTLNAV_MAX_SUBTASKS): longer legs make fewer" in message
+    assert not (tmp_path / "plan.json").exists()
+    plan = stored_or_new_plan(spec, tmp_path, LIMITS)
+    assert 10 < len(plan.subtasks) <= LIMITS.max_subtasks
+    with pytest.raises(MissionError, match="split the mission"):
+        stored_or_new_plan(admit(TINY, LIMITS), tmp_path / "whole", AdmissionLimits(max_subtasks=3))
+
+
 def test_a_translation_that_outgrows_its_budget_stops_at_once(tmp_path: Path) -> None:
     twenty_goals = " && ".join(f"<>g{i}" for i in range(20))  # 2^20 states
     document = with_("task", twenty_goals)
