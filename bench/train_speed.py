@@ -1,10 +1,11 @@
 """Training wall time of training levers, side by side in one run (issue 17, item 3).
 
 Each variant is a set of ``training`` overrides of an example mission (``{}``: the current
-defaults). Every (mission, seed) is trained by every variant one after another, seed by seed,
+defaults; a ``planner`` key overrides the planner section, e.g. ``leg_length``). Every (mission, seed) is trained by every variant one after another, seed by seed,
 as a user would: ``ltlnav train MISSION --out DIR --jobs N`` in a fresh process, timed from
-start to ``bundle.zip``. A variant runs on the same plan as the others (the planner is
-deterministic for the mission's seed, issue 17 item 2), so only the lever differs.
+start to ``bundle.zip``. A variant without planner overrides runs on the same plan as the others
+(the planner is deterministic for the mission's seed, issue 17 item 2), so only the lever
+differs.
 
 The table prints, per row: wall time, mission success (the bundle's rollouts), per sub-task
 steps and final success, and the learner's throughput (env steps trained per job second,
@@ -55,12 +56,14 @@ def mission_path(name: str) -> Path:
 
 
 def mission_file(mission: str, overrides: dict[str, Any], seed: int, folder: Path) -> Path:
-    """The example (or bench mission) with the variant's training overrides and the seed,
-    written to ``folder``."""
+    """The example (or bench mission) with the variant's training overrides (its ``planner``
+    key: planner overrides) and the seed, written to ``folder``."""
     document = yaml.safe_load(mission_path(mission).read_text())
     training = document.setdefault("training", {})
     for key, value in overrides.items():
-        if isinstance(value, dict):
+        if key == "planner":
+            document.setdefault("planner", {}).update(value)
+        elif isinstance(value, dict):
             training.setdefault(key, {}).update(value)
         else:
             training[key] = value
