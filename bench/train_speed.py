@@ -1,11 +1,11 @@
 """Training wall time of training levers, side by side in one run (issue 17, item 3).
 
 Each variant is a set of ``training`` overrides of an example mission (``{}``: the current
-defaults; a ``planner`` key overrides the planner section, e.g. ``leg_length``). Every (mission, seed) is trained by every variant one after another, seed by seed,
-as a user would: ``ltlnav train MISSION --out DIR --jobs N`` in a fresh process, timed from
-start to ``bundle.zip``. A variant without planner overrides runs on the same plan as the others
-(the planner is deterministic for the mission's seed, issue 17 item 2), so only the lever
-differs.
+defaults; a ``planner`` key overrides the planner section, e.g. ``leg_length``). Every (mission,
+seed) is trained by every variant one after another, seed by seed, as a user would: ``ltlnav
+train MISSION --out DIR --jobs N`` in a fresh process, timed from start to ``bundle.zip``. A
+variant without planner overrides runs on the same plan as the others (the planner is
+deterministic for the mission's seed, issue 17 item 2), so only the lever differs.
 
 The table prints, per row: wall time, mission success (the bundle's rollouts), per sub-task
 steps and final success, and the learner's throughput (env steps trained per job second,
