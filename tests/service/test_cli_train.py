@@ -61,6 +61,27 @@ def test_train_then_rollout(tmp_path: Path) -> None:
     assert again.exit_code == 0, again.output  # resumes: every job returns its stored result
 
 
+def test_legs_train_and_hand_over_at_their_joints(tmp_path: Path) -> None:
+    """``planner.leg_length`` cuts the tiny mission's sub-tasks into legs, each trained as a
+    sub-task (the point robot's controller meets them at step 0); the whole mission's
+    rollouts cross every joint."""
+    document = copy.deepcopy(TINY)
+    document["planner"]["leg_length"] = 1.5
+    document["training"]["env"] = {}  # the point robot's feed-forward, as by default
+    mission = tmp_path / "mission.yaml"
+    mission.write_text(yaml.safe_dump(document))
+    out = tmp_path / "run"
+    args = ["train", str(mission), "--out", str(out), "--jobs", "2", "--timesteps", "100"]
+    result = runner.invoke(app, [*args, "--episodes", "4"])
+    assert result.exit_code == 0, result.output
+    with zipfile.ZipFile(out / "bundle.zip") as archive:
+        manifest = json.loads(archive.read("manifest.json"))
+    goals = [entry["goal"] for entry in manifest["subtasks"]]
+    assert len(goals) > 4 and "" in goals and {"a", "b"} <= set(goals)
+    assert all(entry["steps"] == 0 for entry in manifest["subtasks"])
+    assert manifest["mission_evaluation"]["success_rate"] == 1.0
+
+
 def test_rollout_refuses_a_foreign_zip(tmp_path: Path) -> None:
     foreign = tmp_path / "other.zip"
     with zipfile.ZipFile(foreign, "w") as archive:
