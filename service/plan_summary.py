@@ -40,6 +40,7 @@ def summary_lines(plan: MissionPlan, radius: float, margin: float) -> list[str]:
     ]
     for sub in plan.subtasks:
         lines.append(
-            f"  sub-task {sub.index} [{sub.phase}] -> {sub.goal}: {path_length(sub.path):.2f} long"
+            f"  sub-task {sub.index} [{sub.phase}] -> {sub.goal or '(end of guide)'}: "
+            f"{path_length(sub.path):.2f} long"
         )
     return lines

@@ -266,7 +266,7 @@ function planSection(mission, image) {
     [[plan.automaton_states, plan.pruned_states, num(plan.prefix_length), num(plan.suffix_length),
       num(plan.cost), `${num(plan.seconds)} s`]], [0, 1, 2, 3, 4, 5]);
   const subtasks = table(["sub-task", "phase", "goal", "length", "r-balls", "ball radius"],
-    (plan.subtasks || []).map((t) => [t.index, t.phase, t.goal, num(t.length), t.balls,
+    (plan.subtasks || []).map((t) => [t.index, t.phase, t.goal || "(end of guide)", num(t.length), t.balls,
       num(t.r_ball)]), [0, 3, 4, 5]);
   return h("div", {}, image, summary, h("h3", {}, "Sub-tasks"), subtasks);
 }
