@@ -2,10 +2,11 @@
 
 Members: ``manifest.json`` (schema ``workers.manifest.Manifest``: format and version, mission,
 seeds, package versions, the automaton and the pruned one in HOA, the exact plan (its lasso
-included), the ordered sub-tasks with their guides, model file names, learning curves and
-evaluations, the mission evaluation), ``models/subtask_<k>.zip`` (stable-baselines3 archives),
-``README.md`` (model card), ``plan.png``, ``learning_curves.png`` and ``rollout.png``. Read one
-back with ``ConcatenatedPolicy.load`` (re-exported here)."""
+included), the ordered sub-tasks with their guides (a car's drawn paths too), model file names,
+learning curves and evaluations, the mission evaluation), ``models/subtask_<k>.zip``
+(stable-baselines3 archives), ``README.md`` (model card), ``plan.png``,
+``learning_curves.png`` and ``rollout.png``. Read one back with ``ConcatenatedPolicy.load``
+(re-exported here)."""
 
 from __future__ import annotations
 
