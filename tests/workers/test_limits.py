@@ -20,7 +20,7 @@ from service.settings import Settings
 from tests.workers.missions import TINY
 from workers.admission import admit, document_problems, load_admitted, mission_problems
 from workers.limits import AdmissionLimits
-from workers.mission import MissionError, load_mission
+from workers.mission import MissionError, MissionSpec, load_mission
 from workers.run import stored_or_new_plan
 from workers.training_spec import TrainingSpec
 
@@ -174,28 +174,31 @@ def test_settings_hold_every_limit_with_the_same_default() -> None:
     assert Settings().admission_limits() == AdmissionLimits()
 
 
+def refused_plan(spec: MissionSpec, folder: Path, limits: AdmissionLimits) -> tuple[str, str]:
+    """The one problem ``stored_or_new_plan`` refuses ``spec`` for; no plan is stored."""
+    with pytest.raises(MissionError) as caught:
+        stored_or_new_plan(spec, folder, limits)
+    assert not (folder / "plan.json").exists()
+    ((field, message),) = caught.value.problems
+    return field, message
+
+
 def test_a_large_automaton_fails_the_plan_naming_the_limit(tmp_path: Path) -> None:
     document = with_("task", "<>(a && <>b) && <>(b && <>a) && <>(a && <>(b && <>a))")
     spec = admit(document, LIMITS)
     # 26 states before reduction, 10 after: within the translation's budget, over the limit
-    with pytest.raises(MissionError) as caught:
-        stored_or_new_plan(spec, tmp_path, AdmissionLimits(max_automaton_states=9))
-    ((field, message),) = caught.value.problems
+    field, message = refused_plan(spec, tmp_path, AdmissionLimits(max_automaton_states=9))
     assert field == "task"
     assert "over the limit 9 (LTLNAV_MAX_AUTOMATON_STATES)" in message
-    assert not (tmp_path / "plan.json").exists()
 
 
 def test_a_plan_of_too_many_legs_fails_naming_the_limit_and_the_leg_length(
     tmp_path: Path,
 ) -> None:
     spec = admit(with_("planner.leg_length", 0.5), LIMITS)
-    with pytest.raises(MissionError) as caught:
-        stored_or_new_plan(spec, tmp_path, AdmissionLimits(max_subtasks=10))
-    ((field, message),) = caught.value.problems
+    field, message = refused_plan(spec, tmp_path, AdmissionLimits(max_subtasks=10))
     assert field == "planner.leg_length"
     assert "over the limit 10 (LTLNAV_MAX_SUBTASKS): longer legs make fewer" in message
-    assert not (tmp_path / "plan.json").exists()
     plan = stored_or_new_plan(spec, tmp_path, LIMITS)
     assert 10 < len(plan.subtasks) <= LIMITS.max_subtasks
     with pytest.raises(MissionError, match="split the mission"):
