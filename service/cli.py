@@ -86,17 +86,16 @@ def plan(
     seed: Annotated[int | None, typer.Option(help="Override planner.seed.")] = None,
 ) -> None:
     """Plan a mission (within ``LTLNAV_MAX_...``): formula -> automaton -> lasso -> sub-tasks."""
-    from planner.plan import plan_mission, verify_plan
+    from planner.plan import verify_plan
     from service.settings import get_settings
-    from workers.admission import admitted_automaton, load_admitted
+    from workers.admission import admitted_plan, load_admitted
 
     try:
         limits = get_settings().admission_limits()
         spec = load_admitted(mission, limits)
         options = spec.planner_options().model_copy(update={} if seed is None else {"seed": seed})
         world, robot = spec.build_world(), spec.robot
-        nba = admitted_automaton(spec, world, limits)
-        result = plan_mission(world, spec.task, robot.position(), robot.radius, options, nba)
+        result = admitted_plan(spec, world, limits, options)
     except LtlnavError as error:
         raise _fail(error) from error
     problems = verify_plan(result, world, robot.radius)

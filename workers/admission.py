@@ -35,6 +35,7 @@ from workers.limits import (
     count_over,
     number,
     over,
+    subtask_problems,
     translation_budget,
     translation_problems,
 )
@@ -44,6 +45,8 @@ from workers.training_spec import TrainingSpec
 if TYPE_CHECKING:
     from planner.geometry.world import World
     from planner.ltl.automaton import Buchi
+    from planner.plan import MissionPlan
+    from planner.search.planner_spec import PlannerSpec
 
 _TEMPORAL = (Until, Release, WeakUntil, Globally, Eventually, Next)
 
@@ -325,3 +328,20 @@ def admitted_automaton(mission: MissionSpec, world: World, limits: AdmissionLimi
     if too_large:
         raise MissionError(too_large)
     return nba
+
+
+def admitted_plan(
+    mission: MissionSpec, world: World, limits: AdmissionLimits, options: PlannerSpec
+) -> MissionPlan:
+    """The mission's plan in ``world`` under planner ``options``, within ``limits``: its
+    automaton as ``admitted_automaton`` admits it, and ``MissionError`` when the plan has more
+    sub-tasks than ``limits.max_subtasks`` (``PlanningError`` when the mission is infeasible)."""
+    from planner.plan import plan_mission  # the planner: not for the API's admission
+
+    nba = admitted_automaton(mission, world, limits)
+    robot = mission.robot
+    plan = plan_mission(world, mission.task, robot.position(), robot.radius, options, nba)
+    too_many = subtask_problems(len(plan.subtasks), options.leg_length, limits)
+    if too_many:
+        raise MissionError(too_many)
+    return plan

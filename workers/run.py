@@ -30,9 +30,9 @@ import torch
 from envs.mission_env import MissionEnv
 from planner.decompose import lasso_stages
 from planner.errors import PlanningError
-from planner.plan import MissionPlan, plan_mission, verify_plan
+from planner.plan import MissionPlan, verify_plan
 from planner.serialize import plan_from_dict, plan_to_dict
-from workers.admission import admitted_automaton, servable_problems
+from workers.admission import admitted_plan, servable_problems
 from workers.atomic import write_json
 from workers.evaluation import (
     LaneShare,
@@ -51,7 +51,7 @@ from workers.handover_repair import (
 )
 from workers.hooks import TrainingHooks
 from workers.jobs import SubtaskJob, job_seed
-from workers.limits import AdmissionLimits, subtask_problems
+from workers.limits import AdmissionLimits
 from workers.mission import MissionError, MissionSpec, parse_mission
 from workers.policy_act import deterministic_act
 from workers.training import ALGORITHMS, TrainResult, train_subtask
@@ -300,12 +300,7 @@ def stored_or_new_plan(
             warnings.warn(f"planning anew: {stored} holds no usable plan ({error!r})", stacklevel=2)
     world = mission.build_world()
     radius = mission.robot.radius
-    limits = limits or AdmissionLimits()
-    nba = admitted_automaton(mission, world, limits)
-    plan = plan_mission(world, mission.task, mission.robot.position(), radius, options, nba)
-    too_many = subtask_problems(len(plan.subtasks), options.leg_length, limits)
-    if too_many:
-        raise MissionError(too_many)
+    plan = admitted_plan(mission, world, limits or AdmissionLimits(), options)
     problems = verify_plan(plan, world, radius)
     if problems:
         raise PlanningError("the plan failed its own check: " + "; ".join(problems))

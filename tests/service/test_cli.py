@@ -151,6 +151,14 @@ def test_plan_refuses_an_automaton_over_the_admission_limit(tmp_path: Path) -> N
     assert "LTLNAV_MAX_AUTOMATON_STATES" in result.output
 
 
+def test_plan_refuses_more_legs_than_the_admission_limit(tmp_path: Path) -> None:
+    legged = json.loads(json.dumps(GF3))
+    legged.setdefault("planner", {})["leg_length"] = 0.01
+    result = runner.invoke(app, ["plan", str(write(tmp_path, legged))])
+    assert result.exit_code == EXIT_BAD_INPUT, result.output
+    assert "planner.leg_length" in result.output and "LTLNAV_MAX_SUBTASKS" in result.output
+
+
 def test_validate_accepts_every_example() -> None:
     for path in sorted(EXAMPLES.glob("*.yaml")):
         result = runner.invoke(app, ["validate", str(path)])

@@ -420,6 +420,7 @@ def test_one_walk_through_the_steps_parses_the_mission_and_plans_once(
     """Planning, every training job and the assembly in one process: the document is
     validated once, the formula parsed once, the plan made once and never read back."""
     import planner.ltl.parser
+    import planner.plan
     import planner.serialize
     import workers.run
     from planner.ltl.formula import parse
@@ -436,7 +437,7 @@ def test_one_walk_through_the_steps_parses_the_mission_and_plans_once(
         monkeypatch.setattr(module, name, wrapper)
 
     counted(workers.run, "parse_mission")
-    counted(workers.run, "plan_mission")
+    counted(planner.plan, "plan_mission")
     counted(workers.run, "plan_from_dict")
     counted(planner.serialize, "plan_from_dict")
     counted(planner.ltl.parser.Parser, "parse")
