@@ -171,7 +171,7 @@ def course(
     within = opts.r_ball is None and opts.r_ball_within_clearance
     if within and plan is not None and plan.clearance > 0:
         r_ball = min(r_ball, plan.clearance)
-    given = float(spec.start[world.dim]) if len(spec.start) > world.dim else None
+    given = _given_heading(spec, world.dim)
     pool, chosen, opening, dense = _pool(world, spec, subtasks, plan, opts)
     if dense:
         subtasks = pool if whole_lasso else [pool[chosen or 0]]
@@ -182,6 +182,11 @@ def course(
     guide_heading = legs[0].headings[0]
     real = real_starts(world, pool, subtasks[0], handover_of, opening, start, given, guide_heading)
     return legs, real
+
+
+def _given_heading(spec: RobotSpec, dim: int) -> float | None:
+    """The heading the mission gives the robot at its start (None: along the guide)."""
+    return float(spec.start[dim]) if len(spec.start) > dim else None
 
 
 def _pool(
@@ -197,8 +202,9 @@ def _pool(
     listed = plan.subtasks if plan is not None else []
     chosen = next((i for i, s in enumerate(listed) if s is subtasks[0]), None)
     pool = list(plan.subtasks) if plan is not None and chosen is not None else subtasks
-    given = float(spec.start[world.dim]) if len(spec.start) > world.dim else None
-    opening = opening_pose(pool, np.asarray(spec.position(), dtype=float), given)
+    opening = opening_pose(
+        pool, np.asarray(spec.position(), dtype=float), _given_heading(spec, world.dim)
+    )
     rho = _turning_radius(opts, spec)
     if rho <= 0:
         return pool, chosen, opening, False
