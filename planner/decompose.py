@@ -171,6 +171,8 @@ def split_subtask(subtask: SubTask, max_length: float) -> list[SubTask]:
     steps = np.linalg.norm(np.diff(path, axis=0), axis=1)
     cum = np.concatenate([[0.0], np.cumsum(steps)])
     count = max(1, math.ceil(cum[-1] / max_length - 1e-9))
+    if count == 1:
+        return [subtask]
     cuts = np.linspace(0.0, cum[-1], count + 1)
     inner = [np.interp(cuts[1:-1], cum, path[:, j]) for j in range(path.shape[1])]
     knots = [path[0], *np.stack(inner, axis=1), path[-1]]
