@@ -11,6 +11,7 @@ import json
 import os
 import time
 from collections.abc import Callable, Sequence
+from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +20,7 @@ import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 
+from workers.actor_average import AveragedActor
 from workers.atomic import save_with, write_json
 from workers.checkpoints import prune_checkpoints, save_checkpoint
 from workers.evaluation import SubtaskEvaluation
@@ -31,7 +33,8 @@ class ResumableEvalCallback(EvalCallback):
 
     ``restore(upto)`` reloads the history the previous run wrote (entries after step ``upto``,
     the checkpoint the run resumes from, are dropped: those steps are redone). Every new
-    evaluation is told to ``hooks.curve_point``.
+    evaluation is told to ``hooks.curve_point``. With ``averaged``, every evaluation (and the
+    kept policy) is that of the actor's average.
     """
 
     def __init__(
@@ -40,6 +43,7 @@ class ResumableEvalCallback(EvalCallback):
         best_path: Path | None = None,
         start_rate: float | None = None,
         hooks: TrainingHooks | None = None,
+        averaged: AveragedActor | None = None,
         **kwargs: Any,
     ) -> None:
         super().__init__(*args, **kwargs)
@@ -59,21 +63,28 @@ class ResumableEvalCallback(EvalCallback):
         """Success rate of the policy before any update (``workers.residual``'s start check):
         the curve's step-0 point. None: not measured."""
         self.hooks = hooks or TrainingHooks()
+        self.averaged = averaged
 
     def _on_step(self) -> bool:
-        evaluations = len(self.evaluations_successes)
-        go_on = super()._on_step()
-        rate = self.last_success_rate
-        if len(self.evaluations_successes) > evaluations:
-            assert rate is not None
-            if not self._keep_history():
-                return False
-            steps = int(self.num_timesteps)
-            returns = np.asarray(self.evaluations_results[-1], dtype=float)
-            mean_return = float(np.mean(returns)) if returns.size else None
-            self.hooks.curve_point(CurvePoint(steps, int(returns.size), rate, mean_return))
-            self.offer(self.model, steps, rate)
+        with self._evaluated_actor():
+            evaluations = len(self.evaluations_successes)
+            go_on = super()._on_step()
+            rate = self.last_success_rate
+            if len(self.evaluations_successes) > evaluations:
+                assert rate is not None
+                if not self._keep_history():
+                    return False
+                steps = int(self.num_timesteps)
+                returns = np.asarray(self.evaluations_results[-1], dtype=float)
+                mean_return = float(np.mean(returns)) if returns.size else None
+                self.hooks.curve_point(CurvePoint(steps, int(returns.size), rate, mean_return))
+                self.offer(self.model, steps, rate)
         return go_on
+
+    def _evaluated_actor(self) -> AbstractContextManager[None]:
+        """The actor's average in place when an evaluation is due this step (with ``averaged``)."""
+        due = self.eval_freq > 0 and self.n_calls % self.eval_freq == 0
+        return self.averaged.in_place() if due and self.averaged is not None else nullcontext()
 
     def _keep_history(self) -> bool:
         """Rename SB3's new evaluations file over the history if this attempt may still write

@@ -153,12 +153,16 @@ def backend_problems(
     return problems
 
 
-def burn_in_problems(steps: int, backend: str, algorithm: str) -> list[tuple[str, str]]:
-    """(field, problem) of an ``actor_burn_in`` the learner cannot apply."""
-    if steps == 0 or (backend == "sb3" and algorithm != "ppo"):
+def actor_option_problems(
+    options: dict[str, int | None], backend: str, algorithm: str
+) -> list[tuple[str, str]]:
+    """(field, problem) of each option on the actor of sb3's off-policy agents (field: value,
+    e.g. ``actor_burn_in``) that is set (not 0 or None) for a learner without such an actor."""
+    if backend == "sb3" and algorithm != "ppo":
         return []
     learner = "backend sbx" if backend != "sb3" else algorithm
-    return [("actor_burn_in", f"not available with {learner}; use sb3's sac, td3 or ddpg, or 0")]
+    use = "use sb3's sac, td3 or ddpg, or leave it unset"
+    return [(field, f"not available with {learner}; {use}") for field, v in options.items() if v]
 
 
 def env_count_problems(

@@ -32,6 +32,7 @@ from envs.factory import make_env
 from envs.nav_env import NavEnv
 from planner.geometry.pose import Pose
 from planner.plan import MissionPlan
+from workers.actor_average import AveragedActor
 from workers.agents import ALGORITHMS, TrainingError, keep_best_policy, load_agent
 from workers.atomic import save_with, write_json
 from workers.callbacks import (
@@ -301,6 +302,11 @@ class _SubtaskTraining:
         start = self.start_check()
         begun = recorded_start(self.out)
         stopper = StopOnSuccessRate(training.target_success, self.confirmation)
+        averaged = (
+            None
+            if training.actor_average_steps is None
+            else AveragedActor(training.actor_average_steps)
+        )
         evaluation = ResumableEvalCallback(
             self.eval_env,
             n_eval_episodes=training.eval_episodes,
@@ -314,6 +320,7 @@ class _SubtaskTraining:
             best_path=self.out / "best_model.zip",
             start_rate=None if begun is None else begun.success_rate,
             hooks=hooks,
+            averaged=averaged,
         )
         evaluation.restore(self.resumed)
         if start is not None:
@@ -332,6 +339,8 @@ class _SubtaskTraining:
         ]
         if training.actor_burn_in > self.resumed:
             callbacks.append(ActorBurnIn(training.actor_burn_in))
+        if averaged is not None:
+            callbacks.append(averaged)
         hooks.progress(self.resumed, evaluation.last_success_rate, training.n_timesteps)
         met_at_start = start is not None and start.confirmed is not None
         flat = plateaued(evaluation.success_curve, training.plateau_evals, training.plateau_from)
@@ -346,6 +355,8 @@ class _SubtaskTraining:
             hooks.checkpoint(steps, save_checkpoint(model, self.folder, steps))
             prune_checkpoints(self.folder)
         cancelled = cancelled or not owned
+        if averaged is not None and not cancelled:
+            averaged.commit()
         stopped: Stopped = "budget"
         if cancelled:
             stopped = "cancelled"

@@ -31,8 +31,8 @@ from planner.geometry.shape_spec import raise_problems
 from workers.hyperparameters import (
     DEFAULT_POLICY_KWARGS,
     HYPERPARAMETERS,
+    actor_option_problems,
     backend_problems,
-    burn_in_problems,
     env_count_problems,
     policy_kwargs_problems,
 )
@@ -232,6 +232,13 @@ class TrainingSpec(BaseModel):
         "and SAC's entropy coefficient are not updated, so a residual agent keeps its "
         "controller meanwhile (sb3's off-policy algorithms).",
     )
+    actor_average_steps: int | None = Field(
+        None,
+        ge=1,
+        description="Time constant, in env steps, of an average of the actor's weights that "
+        "evaluations measure and the job keeps, against a policy that collapses between them "
+        "(None: the last weights; sb3's off-policy algorithms; restarts when a job resumes).",
+    )
     checkpoint_freq: int | None = Field(
         None, ge=1, description="Env steps between checkpoints (None: every eval_freq steps)."
     )
@@ -341,7 +348,8 @@ class TrainingSpec(BaseModel):
     @model_validator(mode="after")
     def _learner(self) -> TrainingSpec:
         raise_problems(backend_problems(self.backend, self.algorithm, self.hyperparams))
-        raise_problems(burn_in_problems(self.actor_burn_in, self.backend, self.algorithm))
+        actor = self.model_dump(include={"actor_burn_in", "actor_average_steps"})
+        raise_problems(actor_option_problems(actor, self.backend, self.algorithm))
         counts = {"eval_freq": self.eval_freq, "checkpoint_freq": self.checkpoint_freq}
         raise_problems(env_count_problems(self.n_envs, self.algorithm, self.hyperparams, counts))
         return self
