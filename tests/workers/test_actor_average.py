@@ -18,7 +18,6 @@ from workers.actor_average import AveragedActor
 from workers.jobs import SubtaskJob
 from workers.run import stored_or_new_plan
 from workers.training import subtask_env, train_subtask
-from workers.training_spec import TrainingSpec
 
 from .missions import tiny_mission
 
@@ -116,13 +115,3 @@ def test_every_evaluation_and_the_kept_policy_are_the_average(
     last = SAC.load(tmp_path / "job" / "checkpoints" / "model_300_steps.zip", device="cpu")
     learned = list(last.actor.parameters())  # the learner's own actor, checkpointed for a resume
     assert any(not torch.equal(k.detach(), w.detach()) for k, w in zip(kept, learned, strict=True))
-
-
-@pytest.mark.parametrize(
-    ("changes", "learner"), [({"algorithm": "ppo"}, "ppo"), ({"backend": "sbx"}, "backend sbx")]
-)
-def test_an_actor_average_the_learner_cannot_apply_is_refused(
-    changes: dict[str, str], learner: str
-) -> None:
-    with pytest.raises(ValueError, match=f"actor_average_steps.*not available with {learner}"):
-        TrainingSpec.model_validate({"actor_average_steps": 1000, **changes})

@@ -92,11 +92,12 @@ def test_during_the_actor_burn_in_only_the_critic_learns(tmp_path: Path, burn_in
     assert model.actor.optimizer.step.__name__ == "step"  # unfrozen once training ended
 
 
+@pytest.mark.parametrize("field", ["actor_burn_in", "actor_average_steps"])
 @pytest.mark.parametrize(
     ("changes", "learner"), [({"algorithm": "ppo"}, "ppo"), ({"backend": "sbx"}, "backend sbx")]
 )
-def test_an_actor_burn_in_the_learner_cannot_apply_is_refused(
-    changes: dict[str, str], learner: str
+def test_an_option_on_the_actor_the_learner_cannot_apply_is_refused(
+    field: str, changes: dict[str, str], learner: str
 ) -> None:
-    with pytest.raises(ValueError, match=f"actor_burn_in.*not available with {learner}"):
-        TrainingSpec.model_validate({"actor_burn_in": 100, **changes})
+    with pytest.raises(ValueError, match=f"{field}.*not available with {learner}"):
+        TrainingSpec.model_validate({field: 100, **changes})
