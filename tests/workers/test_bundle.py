@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import json
+import sys
 import warnings
 import zipfile
 from collections.abc import Callable
@@ -25,6 +26,7 @@ from workers.bundle import BundleError, ConcatenatedPolicy, read_bundle, write_b
 from workers.evaluation import rollout_mission, stage_policies
 from workers.jobs import SubtaskJob
 from workers.mission import MissionSpec
+from workers.run import EVALUATION_SEED
 from workers.training import TrainResult, train_subtask
 
 from .missions import tiny_mission
@@ -357,6 +359,33 @@ def test_policies_act_under_the_recorded_env_options(
     older = {k: v for k, v in manifest.items() if k != "eval_env"}
     legacy = rewrite(bundle, tmp_path / "j.zip", {"manifest.json": json.dumps(older).encode()})
     ConcatenatedPolicy.load(legacy).close()  # bundles written before the field still load
+
+
+def test_the_start_spread_bench_is_the_bundle_s_own_evaluation_at_its_spread(
+    trained: tuple[MissionSpec, MissionPlan, list[TrainResult], Path],
+) -> None:
+    """``bench/start_noise.py``: at the recorded spread, on one lane, its rollouts are the
+    policy's own evaluation at the reported seed; with no spread every rollout starts alike,
+    the policy's and the zero action's."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
+    import start_noise
+
+    mission, _, _, bundle = trained
+    policy = ConcatenatedPolicy.load(bundle)
+    try:
+        options = policy.options()
+        recorded = (options.start_noise, options.heading_noise)
+        assert recorded[0] > 0
+        ours = start_noise.rollouts(policy, recorded, 3, lanes=1)
+        own = policy.evaluate(3, seed=mission.training.seed + EVALUATION_SEED)
+        assert ours.trails == own.trails and ours.success_rate == own.success_rate
+        assert len({tuple(trail[0]) for trail in ours.trails}) == 3
+        for control in (False, True):
+            still = start_noise.rollouts(policy, (0.0, 0.0), 3, lanes=1, control=control)
+            assert len({tuple(trail[0]) for trail in still.trails}) == 1
+            assert still.success_rate in (0.0, 1.0)
+    finally:
+        policy.close()
 
 
 def ray_ranges(bundle: Path) -> list[float]:
