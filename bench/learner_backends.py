@@ -4,8 +4,9 @@ one run.
 
 Both learn on the NavEnv of a mission's sub-task 0 with its training options and the same
 hyperparameters (the mission's, over the defaults: network, batch, ``train_freq``), built as a
-training job builds them (``workers.agents``; torch on ``torch_threads`` threads, XLA on its own
-pool: the CPU rate below the wall rate shows what that pool adds). Each run
+training job builds them (``workers.agents``; torch and XLA on ``torch_threads`` threads each;
+XLA's pool runs beside the Python thread that drives it: the CPU rate below the wall rate shows
+what that overlap adds). Each run
 first learns 1,000 steps (SBX compiles its update then; both fill past ``learning_starts``),
 then ``--steps`` timed steps; the variants alternate, best of ``--repeats``. With ``n`` envs
 (``training.n_envs``: a ``DummyVecEnv`` of ``n`` copies, stepped in turn in one process) the

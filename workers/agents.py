@@ -4,7 +4,6 @@ checkpoint (``workers.checkpoints``) or a finished job, and the best evaluated p
 
 from __future__ import annotations
 
-import os
 import pickle
 import warnings
 import zipfile
@@ -23,6 +22,7 @@ from planner.errors import LtlnavError
 from workers.callbacks import ResumableEvalCallback
 from workers.checkpoints import checkpoints
 from workers.hyperparameters import OFF_POLICY_TRAIN_FREQ
+from workers.jax_cpu import start_jax_cpu
 from workers.residual import zero_output_layer
 from workers.training_spec import TrainingSpec
 
@@ -32,16 +32,11 @@ ALGORITHMS: dict[str, type[BaseAlgorithm]] = {"sac": SAC, "td3": TD3, "ddpg": DD
 
 def algorithm_class(training: TrainingSpec) -> type[BaseAlgorithm]:
     """The class that trains ``training``: stable-baselines3's, or with ``backend: sbx`` SBX's
-    SAC behind SB3 archives (``workers.sbx_agent``), JAX kept to the CPU.
-
-    XLA's thread count has no setting that holds in this JAX (0.10: ``XLA_FLAGS``'
-    ``xla_cpu_multi_thread_eigen`` and ``intra_op_parallelism_threads`` left a 512 x 512 matmul
-    at 1.8 CPU seconds per second); only the CPU affinity bounds it. SAC's small networks keep
-    it busy little: 1.07 CPU seconds per second on the racecar (``bench/learner_backends.py``).
-    """
+    SAC behind SB3 archives (``workers.sbx_agent``), JAX on the CPU with ``torch_threads`` XLA
+    threads (``workers.jax_cpu``)."""
     if training.backend == "sb3":
         return ALGORITHMS[training.algorithm]
-    os.environ.setdefault("JAX_PLATFORMS", "cpu")  # no probing for accelerators
+    start_jax_cpu(training.torch_threads)
     from workers.sbx_agent import SbxSAC
 
     return SbxSAC

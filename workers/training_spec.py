@@ -273,7 +273,7 @@ class TrainingSpec(BaseModel):
     )
     seed: int = Field(0, ge=0, description="Seed of the agents and the env resets.")
     torch_threads: int = Field(
-        1, ge=1, description="torch threads per job (more is slower on a shared machine)."
+        1, ge=1, description="torch (and XLA, backend sbx) threads per job; more is slower shared."
     )
     n_envs: int = Field(
         1,
@@ -288,7 +288,7 @@ class TrainingSpec(BaseModel):
         "sb3",
         description="Learner: 'sb3' (stable-baselines3, default) or 'sbx' (SBX: SAC on JAX, "
         "needs the 'sbx' extra; the same hyperparameters and the same SB3 archives, Adam's "
-        "state not kept across a resume; XLA's threads are not bounded by torch_threads).",
+        "state not kept across a resume; XLA gets torch_threads threads too).",
     )
     reward: RewardSpec = Field(default_factory=lambda: RewardSpec(), description="Reward.")
     protocol: Protocol = Field(
