@@ -10,7 +10,9 @@ deterministic for the mission's seed, issue 17 item 2), so only the lever differ
 The table prints, per row: wall time, mission success (the bundle's rollouts), per sub-task
 steps and final success, and the learner's throughput (env steps trained per job second,
 evaluations included); then per variant the median over seeds and the ratio of its wall time to
-the first variant's on the same seeds.
+the first variant's on the same seeds; then where the time of each row's slowest job went
+(the learner, periodic evaluations, confirmations, the start check, the final evaluation,
+checkpoints: ``TrainResult.parts``).
 
 Run ``.venv/bin/python bench/train_speed.py`` (the car mission, three variants, seeds 0-2;
 about an hour on two cores) or ``--missions``, ``--variants NAME=JSON ...``, ``--seeds``;
@@ -158,7 +160,41 @@ def report(missions: list[str], variants: list[str], seeds: list[int], out: Path
                 f"| {ratio} | {_pct(statistics.median(successes) if successes else None)} | "
                 f"{_pct(min(successes) if successes else None)} |"
             )
-    return "\n".join(lines) + "\n\n" + "\n".join(summary)
+    return (
+        "\n".join(lines)
+        + "\n\n"
+        + "\n".join(summary)
+        + "\n\n"
+        + slowest_jobs(missions, variants, seeds, out)
+    )
+
+
+def slowest_jobs(missions: list[str], variants: list[str], seeds: list[int], out: Path) -> str:
+    """Where the time of each row's slowest job went (``TrainResult.parts``; jobs run in
+    parallel, so the slowest is the one the bundle waits for)."""
+    lines = [
+        "Slowest job of each row, wall seconds by part:",
+        "",
+        "| mission | variant | seed | sub-task | job s | by part |",
+        "|" + "---|" * 6,
+    ]
+    for mission in missions:
+        for variant in variants:
+            for seed in seeds:
+                fig = row_figures(out / mission / variant / f"seed{seed}")
+                if fig is None or not fig["jobs_results"]:
+                    continue
+                job = max(fig["jobs_results"], key=lambda r: r["seconds"])
+                parts = job.get("parts") or {}
+                shown = ", ".join(
+                    f"{name} {seconds:.0f}"
+                    for name, seconds in sorted(parts.items(), key=lambda p: -p[1])
+                )
+                lines.append(
+                    f"| {mission} | {variant} | {seed} | {job['subtask']} | "
+                    f"{job['seconds']:.0f} | {shown or '-'} |"
+                )
+    return "\n".join(lines)
 
 
 def evaluation_cost(folder: Path, lanes: int = 10, episodes: int = 200) -> str:

@@ -47,7 +47,7 @@ from workers.manifest import (
     SubtaskEntry,
 )
 from workers.mission import MissionSpec
-from workers.training import TrainResult
+from workers.train_result import TrainResult
 
 __all__ = ["BundleError", "ConcatenatedPolicy", "read_bundle", "write_bundle"]
 

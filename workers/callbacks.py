@@ -25,6 +25,7 @@ from workers.atomic import save_with, write_json
 from workers.checkpoints import prune_checkpoints, save_checkpoint
 from workers.evaluation import SubtaskEvaluation
 from workers.hooks import CurvePoint, TrainingHooks
+from workers.stopwatch import Stopwatch
 
 
 class ResumableEvalCallback(EvalCallback):
@@ -44,6 +45,7 @@ class ResumableEvalCallback(EvalCallback):
         start_rate: float | None = None,
         hooks: TrainingHooks | None = None,
         averaged: AveragedActor | None = None,
+        stopwatch: Stopwatch | None = None,
         **kwargs: Any,
     ) -> None:
         super().__init__(*args, **kwargs)
@@ -64,9 +66,12 @@ class ResumableEvalCallback(EvalCallback):
         the curve's step-0 point. None: not measured."""
         self.hooks = hooks or TrainingHooks()
         self.averaged = averaged
+        self.stopwatch = stopwatch or Stopwatch()
 
     def _on_step(self) -> bool:
-        with self._evaluated_actor():
+        if not (self.eval_freq > 0 and self.n_calls % self.eval_freq == 0):
+            return True  # no evaluation due: SB3's EvalCallback does nothing either
+        with self._evaluated_actor(), self.stopwatch.part("periodic evaluations"):
             evaluations = len(self.evaluations_successes)
             go_on = super()._on_step()
             rate = self.last_success_rate
@@ -82,9 +87,8 @@ class ResumableEvalCallback(EvalCallback):
         return go_on
 
     def _evaluated_actor(self) -> AbstractContextManager[None]:
-        """The actor's average in place when an evaluation is due this step (with ``averaged``)."""
-        due = self.eval_freq > 0 and self.n_calls % self.eval_freq == 0
-        return self.averaged.in_place() if due and self.averaged is not None else nullcontext()
+        """The actor's average in place for an evaluation (with ``averaged``)."""
+        return self.averaged.in_place() if self.averaged is not None else nullcontext()
 
     def _keep_history(self) -> bool:
         """Rename SB3's new evaluations file over the history if this attempt may still write
@@ -277,9 +281,12 @@ class ReportedCheckpoints(BaseCallback):
     told to ``hooks.checkpoint``; when ``hooks.may_write()`` says the job is no longer this
     attempt's, training stops instead and ``fenced`` is set."""
 
-    def __init__(self, every: int, folder: Path, hooks: TrainingHooks) -> None:
+    def __init__(
+        self, every: int, folder: Path, hooks: TrainingHooks, stopwatch: Stopwatch | None = None
+    ) -> None:
         super().__init__()
         self.every, self.folder, self.hooks = every, folder, hooks
+        self.stopwatch = stopwatch or Stopwatch()
         self.fenced = False
 
     def _on_step(self) -> bool:
@@ -289,7 +296,8 @@ class ReportedCheckpoints(BaseCallback):
             self.fenced = True
             return False
         steps = int(self.num_timesteps)
-        self.hooks.checkpoint(steps, save_checkpoint(self.model, self.folder, steps))
+        with self.stopwatch.part("checkpoints"):
+            self.hooks.checkpoint(steps, save_checkpoint(self.model, self.folder, steps))
         return True
 
 

@@ -32,7 +32,8 @@ from typing import Any
 from planner.geometry.pose import Pose
 from workers.evaluation import MissionEvaluation
 from workers.jobs import SubtaskJob
-from workers.training import TrainResult
+from workers.stopwatch import added
+from workers.train_result import TrainResult
 from workers.training_spec import TrainingSpec
 
 REPAIR_CURRICULUM = 0.3
@@ -132,6 +133,7 @@ def merged(before: TrainResult, repair: TrainResult) -> TrainResult:
         policy_steps=policy_steps,
         curve=before.curve + [(offset + s, r) for s, r in repair.curve],
         seconds=before.seconds + repair.seconds,
+        parts=added(before.parts, repair.parts),
         repairs=before.repairs + 1,
     )
 

@@ -24,7 +24,7 @@ from workers.jobs import SubtaskJob
 from workers.limits import AdmissionLimits
 from workers.mission import MissionSpec
 from workers.run import MissionRun, RunResult, Spread
-from workers.training import TrainResult
+from workers.train_result import TrainResult
 
 DRIVER_POLL_SECONDS = 1.0
 """How often the progress queue's manager and the pool workers check that the driver still

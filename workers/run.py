@@ -54,7 +54,8 @@ from workers.jobs import SubtaskJob, job_seed
 from workers.limits import AdmissionLimits
 from workers.mission import MissionError, MissionSpec, parse_mission
 from workers.policy_act import deterministic_act
-from workers.training import ALGORITHMS, TrainResult, train_subtask
+from workers.train_result import TrainResult
+from workers.training import ALGORITHMS, train_subtask
 from workers.training_spec import TrainingSpec
 
 PLAN_FILE = "plan.json"

@@ -18,9 +18,7 @@ import json
 import time
 import warnings
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Literal
 
 import torch
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
@@ -53,11 +51,12 @@ from workers.jobs import SubtaskJob
 from workers.mission import MissionSpec
 from workers.policy_act import deterministic_act
 from workers.residual import StartCheck, recorded_start, start_check
+from workers.stopwatch import Stopwatch
+from workers.train_result import Confirmation, Stopped, TrainResult, stored_confirmation
 from workers.training_spec import TrainingSpec
 
 __all__ = ["ALGORITHMS", "TrainResult", "TrainingError", "subtask_env", "train_subtask"]
 
-Stopped = Literal["budget", "target", "plateau", "cancelled"]
 
 RESULT = "result.json"
 """A finished job's ``TrainResult`` in its folder."""
@@ -66,71 +65,11 @@ CONFIRMATIONS = "confirmations.json"
 """Every confirmation of the early stop so far, ``[[steps, success rate, episodes], ...]``: a
 resumed job goes on with the next confirmation seed."""
 
-Confirmation = tuple[int, float, int | None]
-"""``(steps, success rate, episodes)`` of a confirmation of the early stop. One that can no
-longer reach the target stops there: its rate is over the episodes it ran (None: recorded
-before confirmations stopped early, all ``final_eval_episodes``)."""
-
 PERIODIC_SEED, REPORT_SEED, CONFIRMATION_SEED = 1, 2, 3
 """Offsets from a job's seed of its evaluations' seeds. The periodic evaluations (and the start
 check's quick one) and the confirmations (confirmation ``n`` at ``CONFIRMATION_SEED + n``)
 decide: the early stop and the kept policy. The final evaluation at ``REPORT_SEED`` is run once,
 after every decision, and decides nothing: it is the one reported."""
-
-
-@dataclass
-class TrainResult:
-    """What a training job produced."""
-
-    subtask: int
-    seed: int
-    model_path: str
-    """The final policy (an SB3 .zip), or the last checkpoint of a cancelled job."""
-    steps: int
-    """Env steps trained in total (restored ones included)."""
-    resumed_from: int
-    """Steps restored from a checkpoint at the start of this call (0: fresh start)."""
-    stopped: Stopped
-    """Why training ended: the budget, the target success rate, ``plateau_evals`` evaluations
-    without a new best, or a cancel request."""
-    policy_steps: int | None = None
-    """Steps of the policy kept when the budget ran out (or a plateau stopped training) before
-    the target: that of the best periodic evaluation (the first with the highest success rate),
-    if better than the last one; None: the policy at ``steps``."""
-    curve: list[tuple[int, float]] = field(default_factory=list)
-    """``(steps, success rate)`` of every periodic evaluation (and of the start check at step 0
-    of a residual agent, ``workers.residual``)."""
-    confirmations: list[Confirmation] = field(default_factory=list)
-    """Every confirmation of the early stop (up to ``final_eval_episodes`` each, seeds of their
-    own), failed ones included; the last one of a job stopped at the target is the one that
-    passed."""
-    final: dict[str, Any] | None = None
-    """``SubtaskEvaluation.to_json()`` over ``final_eval_episodes`` on the report seed, measured
-    once after training (None when cancelled)."""
-    seconds: float = 0.0
-    """Wall time of this call."""
-    repairs: int = 0
-    """Hand-over repair rounds the policy went through (``workers.handover_repair``); then
-    ``final`` is measured from the poses the mission's rollouts handed the sub-task over in."""
-
-    def to_json(self) -> dict[str, Any]:
-        out = asdict(self)
-        out["curve"] = [list(p) for p in self.curve]
-        out["confirmations"] = [list(p) for p in self.confirmations]
-        return out
-
-    @classmethod
-    def from_json(cls, doc: dict[str, Any]) -> TrainResult:
-        doc = dict(doc)
-        doc["curve"] = [(int(s), float(r)) for s, r in doc.get("curve", [])]
-        doc["confirmations"] = [_confirmation(c) for c in doc.get("confirmations", [])]
-        return cls(**doc)
-
-
-def _confirmation(stored: list[Any]) -> Confirmation:
-    """A confirmation as ``TrainResult.to_json`` or ``CONFIRMATIONS`` stores it."""
-    episodes = stored[2] if len(stored) > 2 else None
-    return int(stored[0]), float(stored[1]), None if episodes is None else int(episodes)
 
 
 def subtask_env(
@@ -185,6 +124,7 @@ def train_subtask(
     finally:
         run.close()
     result.seconds = time.monotonic() - t0
+    result.parts = run.stopwatch.split(result.seconds)
     if result.stopped != "cancelled":
         write_json(out / RESULT, result.to_json(), durable=True)
     return result
@@ -220,7 +160,7 @@ def _stored_confirmations(folder: Path) -> list[Confirmation]:
     """The confirmations an earlier attempt recorded in ``folder`` (none if unreadable)."""
     path = folder / CONFIRMATIONS
     try:
-        return [_confirmation(c) for c in json.loads(path.read_text())]
+        return [stored_confirmation(c) for c in json.loads(path.read_text())]
     except (OSError, ValueError, TypeError, IndexError):
         return []
 
@@ -259,11 +199,13 @@ class _SubtaskTraining:
         self.confirmations = [c for c in _stored_confirmations(out) if c[0] <= self.resumed]
         self.act = deterministic_act(self.model.policy)
         """The policy's deterministic actions for a batch of observations."""
+        self.stopwatch = Stopwatch()
 
     def final_evaluation(self) -> SubtaskEvaluation:
         """The reported evaluation (``final_eval_episodes`` from the real starts)."""
         episodes = self.job.training.final_eval_episodes
-        return self.evaluation(episodes, self.job.seed + REPORT_SEED)
+        with self.stopwatch.part("final evaluation"):
+            return self.evaluation(episodes, self.job.seed + REPORT_SEED)
 
     def confirmation(self) -> SubtaskEvaluation:
         """The next confirmation of the early stop (``final_eval_episodes``, a seed of its
@@ -271,7 +213,8 @@ class _SubtaskTraining:
         seed = self.job.seed + CONFIRMATION_SEED + len(self.confirmations)
         episodes = self.job.training.final_eval_episodes
         needed = successes_needed(episodes, self.job.training.target_success)
-        check = self.evaluation(episodes, seed, needed)
+        with self.stopwatch.part("confirmations"):
+            check = self.evaluation(episodes, seed, needed)
         steps = int(self.model.num_timesteps)
         self.confirmations.append((steps, check.success_rate, check.episodes))
         if self.hooks.may_write():
@@ -281,7 +224,8 @@ class _SubtaskTraining:
     def quick_evaluation(self) -> SubtaskEvaluation:
         """An evaluation of a periodic evaluation's size (the start check's)."""
         episodes = self.job.training.eval_episodes
-        return self.evaluation(episodes, self.job.seed + PERIODIC_SEED)
+        with self.stopwatch.part("start check"):
+            return self.evaluation(episodes, self.job.seed + PERIODIC_SEED)
 
     def evaluation(self, episodes: int, seed: int, needed: int = 0) -> SubtaskEvaluation:
         return evaluate_subtask(self.act, self.eval_env.envs, episodes, seed, needed)
@@ -321,13 +265,14 @@ class _SubtaskTraining:
             start_rate=None if begun is None else begun.success_rate,
             hooks=hooks,
             averaged=averaged,
+            stopwatch=self.stopwatch,
         )
         evaluation.restore(self.resumed)
         if start is not None:
             evaluation.offer(model, 0, start.success_rate)
         every = (training.checkpoint_freq or training.eval_freq) // training.n_envs
         cancel = StopOnRequest(hooks.should_stop)
-        checkpointer = ReportedCheckpoints(every, self.folder, hooks)
+        checkpointer = ReportedCheckpoints(every, self.folder, hooks, self.stopwatch)
         plateau = StopOnPlateau(evaluation, training.plateau_evals, training.plateau_from)
         callbacks: list[BaseCallback] = [
             evaluation,
@@ -352,7 +297,8 @@ class _SubtaskTraining:
         steps = int(model.num_timesteps)
         owned = hooks.may_write()
         if owned:
-            hooks.checkpoint(steps, save_checkpoint(model, self.folder, steps))
+            with self.stopwatch.part("checkpoints"):
+                hooks.checkpoint(steps, save_checkpoint(model, self.folder, steps))
             prune_checkpoints(self.folder)
         cancelled = cancelled or not owned
         if averaged is not None and not cancelled:

@@ -40,7 +40,7 @@ from service.settings import Settings
 from workers.evaluation import MissionEvaluation
 from workers.handover_repair import RepairRound, kept_results
 from workers.run import MissionRun
-from workers.training import TrainResult
+from workers.train_result import TrainResult
 
 
 def assemble_step(settings: Settings, mission_id: str, dispatch: Dispatch) -> str:
