@@ -95,6 +95,14 @@ class JobView(BaseModel):
     final: dict[str, Any] | None = Field(
         description="The final evaluation of the trained sub-policy (when done)."
     )
+    seconds: float | None = Field(
+        None, description="Wall seconds of the job's last training call (when done)."
+    )
+    time_by_part: dict[str, float] | None = Field(
+        None,
+        description="Those seconds by part (when done): periodic evaluations, confirmations, "
+        "the start check, the final evaluation, checkpoints, the learner and the rest.",
+    )
 
 
 class MissionView(BaseModel):

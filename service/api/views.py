@@ -34,7 +34,10 @@ def _subtask_indices(mission: Mission) -> list[int]:
 
 def job_view(job: Job) -> JobView:
     """A job as the API shows it."""
-    final: Any = (job.result or {}).get("final")
+    result = job.result or {}
+    final: Any = result.get("final")
+    seconds: Any = result.get("seconds")
+    parts: Any = result.get("parts")
     return JobView(
         index=job.index,
         round=job.repair_round,
@@ -46,6 +49,8 @@ def job_view(job: Job) -> JobView:
         attempts=job.attempts,
         reason=job.reason,
         final=final if isinstance(final, dict) else None,
+        seconds=seconds if isinstance(seconds, int | float) else None,
+        time_by_part=parts if isinstance(parts, dict) and parts else None,
     )
 
 

@@ -271,6 +271,14 @@ function planSection(mission, image) {
   return h("div", {}, image, summary, h("h3", {}, "Sub-tasks"), subtasks);
 }
 
+/** A finished job's wall time; hovering shows where it went, largest part first. */
+function jobTime(job) {
+  if (job.seconds === null || job.seconds === undefined) return "–";
+  const parts = Object.entries(job.time_by_part || {}).sort((a, b) => b[1] - a[1]);
+  const split = parts.map(([name, seconds]) => `${name}: ${duration(seconds)}`).join("\n");
+  return h("span", { class: "job-time", title: split || null }, duration(job.seconds));
+}
+
 function jobsTable(jobs) {
   if (!jobs || jobs.length === 0) return h("p", { class: "muted" }, "No training jobs yet.");
   const rows = jobs.map((j) => {
@@ -280,12 +288,12 @@ function jobsTable(jobs) {
       j.final ? f.episodes : "–", j.final ? pct(f.success_rate) : "–",
       j.final ? pct(f.collision_rate) : "–", j.final ? pct(f.timeout_rate) : "–",
       j.final ? pct(f.rejected_rate) : "–", j.final ? num(f.mean_steps_to_goal, 1) : "–",
-      j.reason || ""];
+      jobTime(j), j.reason || ""];
   });
   return h("div", { id: "jobs" }, table(
     ["sub-task", "status", "steps", "latest success", "ETA", "attempts", "eval episodes",
-      "success", "collisions", "timeouts", "rejected", "steps to goal", "reason"],
-    rows, [0, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11]));
+      "success", "collisions", "timeouts", "rejected", "steps to goal", "time", "reason"],
+    rows, [0, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12]));
 }
 
 function repairsTable(repairs, rounds) {

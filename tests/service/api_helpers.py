@@ -39,6 +39,8 @@ PLAN = {
         {"index": 1, "phase": "suffix", "goal": "b", "length": 4.0, "balls": 5},
     ],
 }
+PARTS = {"periodic evaluations": 4.0, "final evaluation": 2.5, "learner and the rest": 6.0}
+"""A finished job's wall time by part (``TrainResult.parts``)."""
 
 
 def tiny() -> dict[str, Any]:
@@ -119,7 +121,8 @@ def advance(
             elif status == MissionStatus.evaluating:
                 for row in repo.mission_jobs(session, mission_id):
                     final = {"success_rate": 1.0, "episodes": 2}
-                    repo.finish_job(session, row.id, JobStatus.done, {"steps": 200, "final": final})
+                    result = {"steps": 200, "final": final, "seconds": 12.5, "parts": PARTS}
+                    repo.finish_job(session, row.id, JobStatus.done, result)
             elif status == MissionStatus.done:
                 bundle = folder / "bundle.zip"
                 with zipfile.ZipFile(bundle, "w") as archive:

@@ -18,6 +18,7 @@ from service.api import health, system
 from service.db import Database
 from service.models import MissionStatus
 from tests.service.api_helpers import (
+    PARTS,
     PLAN,
     RecordingEnqueue,
     advance,
@@ -127,6 +128,7 @@ def test_progress_plan_curve_and_bundle(api: Api) -> None:
     ]
     assert mission["jobs"][0]["success_rate"] == 0.5
     assert mission["jobs"][0]["eta_seconds"] == 3.0
+    assert mission["jobs"][0]["seconds"] is None and mission["jobs"][0]["time_by_part"] is None
     assert mission["jobs"][0]["attempts"] == 1
     assert mission["links"]["curves"] == [f"{base}/subtasks/0/curve", f"{base}/subtasks/1/curve"]
     picture = api.http.get(f"{base}/plan.png")
@@ -151,6 +153,7 @@ def test_progress_plan_curve_and_bundle(api: Api) -> None:
     assert mission["status"] == "done"
     assert mission["evaluation"] == {"episodes": 2, "success_rate": 1.0}
     assert mission["jobs"][1]["final"] == {"success_rate": 1.0, "episodes": 2}
+    assert mission["jobs"][1]["seconds"] == 12.5 and mission["jobs"][1]["time_by_part"] == PARTS
     bundle = api.http.get(f"{base}/bundle")
     assert bundle.status_code == 200
     assert bundle.headers["content-type"] == "application/zip"

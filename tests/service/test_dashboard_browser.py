@@ -332,6 +332,9 @@ def test_submit_watch_progress_and_download_the_bundle(
     assert any(sum(s) > 0 for s in training), "progress never moved while training"
 
     page.locator("#evaluation table").first.wait_for()
+    times = page.locator("#jobs .job-time")
+    assert times.count() == 4
+    assert "final evaluation" in (times.first.get_attribute("title") or "")
     page.locator("#curves .curve svg path.line").first.wait_for(state="attached")
     assert page.locator("#curves .curve").count() == 4
     assert page.locator("img.plan-img").first.evaluate("img => img.naturalWidth") > 0
