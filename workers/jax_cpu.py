@@ -17,29 +17,30 @@ import os
 
 log = logging.getLogger(__name__)
 
-_pool_threads: int | None = None
-"""The XLA pool's size when this module started the backend (None: not started here)."""
+_started: tuple[int, int] | None = None
+"""``(threads asked for, the pool's size)`` when this module started the backend (None: it
+did not)."""
 
 
 def start_jax_cpu(threads: int) -> int | None:
     """Start JAX's CPU backend with an XLA pool of ``threads`` threads (at most the CPUs this
     process may use), unless it has started already; returns the pool's size when this module
     started it (None when something else did, so its size is unknown)."""
-    global _pool_threads
+    global _started
     os.environ.setdefault("JAX_PLATFORMS", "cpu")  # no probing for accelerators
     import jax
     from jax._src import xla_bridge
 
     if xla_bridge.backends_are_initialized():
-        if _pool_threads != threads:
-            pool = "its own number of" if _pool_threads is None else str(_pool_threads)
+        if _started is None or _started[0] != threads:
+            pool = "the size XLA chose" if _started is None else f"{_started[1]} thread(s)"
             log.warning(
-                "XLA keeps %s threads: its backend started earlier in this process, so "
+                "XLA's thread pool stays at %s (its backend started earlier in this process): "
                 "torch_threads=%d bounds torch only",
                 pool,
                 threads,
             )
-        return _pool_threads
+        return None if _started is None else _started[1]
     if not hasattr(os, "sched_setaffinity"):  # not Linux: XLA sizes its pool by itself
         jax.devices()
         return None
@@ -54,7 +55,7 @@ def start_jax_cpu(threads: int) -> int | None:
             with contextlib.suppress(ProcessLookupError):  # a thread that has ended since
                 os.sched_setaffinity(thread, cpus)
         os.sched_setaffinity(0, cpus)
-    _pool_threads = size
+    _started = (threads, size)
     return size
 
 

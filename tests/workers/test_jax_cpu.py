@@ -68,3 +68,27 @@ def test_the_sbx_backend_gives_xla_torch_threads_threads_free_on_every_cpu(
     assert probe["pool"] == min(torch_threads, len(cpus))
     assert probe["cpus"] == cpus
     assert probe["affinities"] == [cpus]
+
+
+WARNING_PROBE = """
+from workers.jax_cpu import start_jax_cpu
+print(start_jax_cpu(1), flush=True)
+print(start_jax_cpu(1), flush=True)
+print(start_jax_cpu(2), flush=True)
+"""
+
+
+def test_a_later_job_with_other_threads_is_told_the_pool_it_gets() -> None:
+    done = subprocess.run(
+        [sys.executable, "-c", WARNING_PROBE],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
+    assert done.stdout.split() == ["1", "1", "1"]
+    warnings = [line for line in done.stderr.splitlines() if "thread pool" in line]
+    assert warnings == [
+        "XLA's thread pool stays at 1 thread(s) (its backend started earlier in this "
+        "process): torch_threads=2 bounds torch only"
+    ]
