@@ -78,6 +78,15 @@ class TrainProgress:
         self.progress.update(task, completed=steps, total=total, success=shown, took=took)
 
 
+def time_split(seconds: float, parts: dict[str, float]) -> str:
+    """`` in 948 s (learner and the rest 625, periodic evaluations 246, ...)``: a job's wall
+    time and its parts, largest first ('' for a result that recorded none)."""
+    if not parts:
+        return ""
+    shown = ", ".join(f"{name} {s:.0f}" for name, s in sorted(parts.items(), key=lambda p: -p[1]))
+    return f" in {seconds:.0f} s ({shown})"
+
+
 def result_lines(result: RunResult) -> list[str]:
     """What ``ltlnav train`` prints once a run ends: each sub-task, each hand-over repair
     round, the mission's evaluation and the bundle."""
@@ -88,7 +97,7 @@ def result_lines(result: RunResult) -> list[str]:
         shown = "-" if rate is None else f"{100 * rate:.1f} %"
         lines.append(
             f"  sub-task {r.subtask}: {r.steps} steps ({r.stopped}), success {shown} over "
-            f"{final.get('episodes', 0)} episodes"
+            f"{final.get('episodes', 0)} episodes{time_split(r.seconds, r.parts)}"
         )
     for repair in result.repairs:
         subtasks = ", ".join(map(str, repair.subtasks))

@@ -34,6 +34,9 @@ def test_train_then_rollout(tmp_path: Path) -> None:
     assert "mission success rate" in result.output and "bundle written" in result.output
     for k in range(4):
         assert f"sub-task {k}: " in result.output
+    subtask_lines = [line for line in result.output.splitlines() if "  sub-task " in line]
+    assert len(subtask_lines) == 4
+    assert all(" s (" in line and "learner and the rest" in line for line in subtask_lines)
     # 100 steps cannot train the mission: hand-over repair runs (handover_steps 200 in TINY)
     assert "hand-over repair 1 (sub-tasks" in result.output
     bundle = out / "bundle.zip"
