@@ -8,7 +8,9 @@ driver hears goes through ``workers.hooks.TrainingHooks``.
 from __future__ import annotations
 
 import json
+import math
 import os
+import statistics
 import time
 from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager, nullcontext
@@ -196,15 +198,20 @@ def evaluations_since_best(curve: Sequence[tuple[int, float]]) -> int:
 
 
 class StopOnPlateau(BaseCallback):
-    """Stop training once ``plateaued(evaluation.success_curve, patience, floor)`` (the start
-    check's rate, when measured, is the curve's first point); ``patience`` None: never."""
+    """Stop training once ``plateaued(evaluation.success_curve, patience, floor, episodes)``
+    (the start check's rate, when measured, is the curve's first point); ``patience`` None:
+    never."""
 
     def __init__(
-        self, evaluation: ResumableEvalCallback, patience: int | None, floor: float
+        self,
+        evaluation: ResumableEvalCallback,
+        patience: int | None,
+        floor: float,
+        episodes: int,
     ) -> None:
         super().__init__()
         self.evaluation = evaluation
-        self.patience, self.floor = patience, floor
+        self.patience, self.floor, self.episodes = patience, floor, episodes
         self.plateaued = False
         self._seen = len(evaluation.evaluations_successes)
 
@@ -213,16 +220,29 @@ class StopOnPlateau(BaseCallback):
         if self.patience is None or evaluations == self._seen:
             return True
         self._seen = evaluations
-        self.plateaued = plateaued(self.evaluation.success_curve, self.patience, self.floor)
+        curve = self.evaluation.success_curve
+        self.plateaued = plateaued(curve, self.patience, self.floor, self.episodes)
         return not self.plateaued
 
 
-def plateaued(curve: Sequence[tuple[int, float]], patience: int | None, floor: float) -> bool:
-    """Whether ``curve``'s best success rate is at least ``floor`` and the last ``patience``
-    evaluations did not beat it (``patience`` None: never)."""
-    if patience is None or not curve:
+def plateaued(
+    curve: Sequence[tuple[int, float]], patience: int | None, floor: float, episodes: int
+) -> bool:
+    """Whether ``curve`` (evaluations of ``episodes`` episodes each) is flat near its best: the
+    best success rate is at least ``floor``, the last ``patience`` evaluations did not beat it,
+    and their median is at least ``plateau_level(floor, episodes)``, so that a policy that fell
+    after its best (SAC's collapses) trains on (``patience`` None: never)."""
+    if patience is None or not curve or evaluations_since_best(curve) < patience:
         return False
-    return max(rate for _, rate in curve) >= floor and evaluations_since_best(curve) >= patience
+    recent = [rate for _, rate in curve[-patience:]]
+    level = plateau_level(floor, episodes)
+    return max(rate for _, rate in curve) >= floor and statistics.median(recent) >= level
+
+
+def plateau_level(floor: float, episodes: int) -> float:
+    """``floor`` less two standard errors of an evaluation of ``episodes`` episodes of a policy
+    whose success rate is ``floor``: its evaluations' median stays above this."""
+    return floor - 2 * math.sqrt(floor * (1 - floor) / max(episodes, 1))
 
 
 class StopOnRequest(BaseCallback):

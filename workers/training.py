@@ -151,7 +151,9 @@ def _finished(result: TrainResult, training: TrainingSpec) -> bool:
     if result.steps >= training.n_timesteps:
         return True
     if result.stopped == "plateau":
-        return plateaued(result.curve, training.plateau_evals, training.plateau_from)
+        return plateaued(
+            result.curve, training.plateau_evals, training.plateau_from, training.eval_episodes
+        )
     passed = result.confirmations[-1][1] if result.confirmations else None
     return result.stopped == "target" and (passed is None or passed >= training.target_success)
 
@@ -273,7 +275,8 @@ class _SubtaskTraining:
         every = (training.checkpoint_freq or training.eval_freq) // training.n_envs
         cancel = StopOnRequest(hooks.should_stop)
         checkpointer = ReportedCheckpoints(every, self.folder, hooks, self.stopwatch)
-        plateau = StopOnPlateau(evaluation, training.plateau_evals, training.plateau_from)
+        patience, floor = training.plateau_evals, training.plateau_from
+        plateau = StopOnPlateau(evaluation, patience, floor, training.eval_episodes)
         callbacks: list[BaseCallback] = [
             evaluation,
             plateau,
@@ -288,7 +291,7 @@ class _SubtaskTraining:
             callbacks.append(averaged)
         hooks.progress(self.resumed, evaluation.last_success_rate, training.n_timesteps)
         met_at_start = start is not None and start.confirmed is not None
-        flat = plateaued(evaluation.success_curve, training.plateau_evals, training.plateau_from)
+        flat = plateaued(evaluation.success_curve, patience, floor, training.eval_episodes)
         cancelled = hooks.should_stop()
         remaining = training.n_timesteps - self.resumed
         if remaining > 0 and not cancelled and not met_at_start and not flat:

@@ -213,9 +213,9 @@ class TrainingSpec(BaseModel):
     plateau_evals: int | None = Field(
         None,
         ge=1,
-        description="Stop training once the best periodic success rate is at least "
-        "plateau_from and this many evaluations in a row have not beaten it, and keep the best "
-        "one's policy (None: train on to n_timesteps).",
+        description="Stop training once the best periodic rate is >= plateau_from and this "
+        "many evaluations in a row, their median within 2 standard errors of plateau_from (a "
+        "fall is no plateau), have not beaten it; keep the best's policy (None: never).",
     )
     plateau_from: float = Field(
         0.9,

@@ -20,6 +20,7 @@ from workers.callbacks import (
     ResumableEvalCallback,
     StopOnSuccessRate,
     evaluations_since_best,
+    plateau_level,
     plateaued,
 )
 from workers.evaluation import SubtaskEvaluation
@@ -317,8 +318,20 @@ def test_evaluations_since_best_count_from_the_first_highest_rate() -> None:
     assert evaluations_since_best([(0, 0.5), (5, 0.8), (10, 0.8), (15, 0.7)]) == 2
     assert evaluations_since_best([(0, 0.5), (5, 0.8), (10, 0.9)]) == 0
     curve = [(0, 0.5), (5, 0.8), (10, 0.8), (15, 0.7)]
-    assert plateaued(curve, 2, 0.8) and not plateaued(curve, 3, 0.8)
-    assert not plateaued(curve, 2, 0.85) and not plateaued(curve, None, 0.0)
+    assert plateaued(curve, 2, 0.8, 50) and not plateaued(curve, 3, 0.8, 50)
+    assert not plateaued(curve, 2, 0.85, 50) and not plateaued(curve, None, 0.0, 50)
+
+
+def test_a_fall_after_the_best_is_no_plateau_and_one_dip_does_not_hide_one() -> None:
+    assert plateau_level(0.9, 50) == pytest.approx(0.815, abs=0.001)
+    assert plateau_level(0.0, 50) == 0.0 and plateau_level(1.0, 50) == 1.0
+    steps = range(0, 35_000, 5_000)
+    fallen = list(zip(steps, [0.92, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0], strict=True))
+    collapse = list(zip(steps, [0.96, 0.86, 0.22, 0.0, 0.42, 0.14, 0.0], strict=True))
+    flat = list(zip(steps, [0.92, 0.88, 0.84, 0.9, 0.86, 0.0, 0.9], strict=True))
+    assert not plateaued(fallen, 6, 0.9, 50) and not plateaued(collapse, 6, 0.9, 50)
+    assert plateaued(flat, 6, 0.9, 50)
+    assert not plateaued(flat, 6, 0.9, 1_000)  # with 1000 episodes 0.87 is below 0.9's level
 
 
 def test_a_plateau_stops_training_keeps_the_best_and_a_raised_patience_trains_on(
