@@ -172,6 +172,9 @@ def report(missions: list[str], variants: list[str], seeds: list[int], out: Path
 def slowest_jobs(missions: list[str], variants: list[str], seeds: list[int], out: Path) -> str:
     """Where the time of each row's slowest job went (``TrainResult.parts``; jobs run in
     parallel, so the slowest is the one the bundle waits for)."""
+    sys.path.insert(0, str(ROOT))
+    from workers.stopwatch import largest_first
+
     lines = [
         "Slowest job of each row, wall seconds by part:",
         "",
@@ -185,14 +188,9 @@ def slowest_jobs(missions: list[str], variants: list[str], seeds: list[int], out
                 if fig is None or not fig["jobs_results"]:
                     continue
                 job = max(fig["jobs_results"], key=lambda r: r["seconds"])
-                parts = job.get("parts") or {}
-                shown = ", ".join(
-                    f"{name} {seconds:.0f}"
-                    for name, seconds in sorted(parts.items(), key=lambda p: -p[1])
-                )
                 lines.append(
                     f"| {mission} | {variant} | {seed} | {job['subtask']} | "
-                    f"{job['seconds']:.0f} | {shown or '-'} |"
+                    f"{job['seconds']:.0f} | {largest_first(job.get('parts') or {}) or '-'} |"
                 )
     return "\n".join(lines)
 

@@ -21,6 +21,8 @@ from rich.progress import (
 )
 from rich.text import Text
 
+from workers.stopwatch import largest_first
+
 if TYPE_CHECKING:
     from workers.run import RunResult
 
@@ -81,10 +83,7 @@ class TrainProgress:
 def time_split(seconds: float, parts: dict[str, float]) -> str:
     """`` in 948 s (learner and the rest 625, periodic evaluations 246, ...)``: a job's wall
     time and its parts, largest first ('' for a result that recorded none)."""
-    if not parts:
-        return ""
-    shown = ", ".join(f"{name} {s:.0f}" for name, s in sorted(parts.items(), key=lambda p: -p[1]))
-    return f" in {seconds:.0f} s ({shown})"
+    return f" in {seconds:.0f} s ({largest_first(parts)})" if parts else ""
 
 
 def result_lines(result: RunResult) -> list[str]:

@@ -39,6 +39,11 @@ class Stopwatch:
         return {**timed, LEARNER: round(max(0.0, total - sum(self.seconds.values())), 3)}
 
 
+def largest_first(parts: Mapping[str, float]) -> str:
+    """``learner and the rest 625, periodic evaluations 246, ...``: parts in whole seconds."""
+    return ", ".join(f"{name} {s:.0f}" for name, s in sorted(parts.items(), key=lambda p: -p[1]))
+
+
 def added(first: Mapping[str, float], second: Mapping[str, float]) -> dict[str, float]:
     """The parts of two calls together."""
     return {k: round(first.get(k, 0.0) + second.get(k, 0.0), 3) for k in {*first, *second}}
