@@ -28,8 +28,9 @@ class TrainResult:
     resumed_from: int
     """Steps restored from a checkpoint at the start of this call (0: fresh start)."""
     stopped: Stopped
-    """Why training ended: the budget, the target success rate, ``plateau_evals`` evaluations
-    without a new best, or a cancel request."""
+    """Why training ended: the budget, the target success rate, a plateau (``plateau_evals``
+    evaluations near the best without beating it: ``workers.callbacks.plateaued``), or a
+    cancel request."""
     policy_steps: int | None = None
     """Steps of the policy kept when the budget ran out (or a plateau stopped training) before
     the target: that of the best periodic evaluation (the first with the highest success rate),
