@@ -35,16 +35,21 @@ print(json.dumps({
 """
 
 
-def _probe(torch_threads: int) -> dict[str, list[int] | int]:
-    """The XLA pool's size and the threads' CPUs in a process that built an SBX learner with
-    ``torch_threads`` (0: JAX started directly, XLA's own choice)."""
-    done = subprocess.run(
-        [sys.executable, "-c", PROBE, str(torch_threads)],
+def _fresh_process(script: str, *args: str) -> subprocess.CompletedProcess[str]:
+    """``script`` run by this Python in a process of its own (its output captured)."""
+    return subprocess.run(
+        [sys.executable, "-c", script, *args],
         capture_output=True,
         text=True,
         timeout=120,
         check=True,
     )
+
+
+def _probe(torch_threads: int) -> dict[str, list[int] | int]:
+    """The XLA pool's size and the threads' CPUs in a process that built an SBX learner with
+    ``torch_threads`` (0: JAX started directly, XLA's own choice)."""
+    done = _fresh_process(PROBE, str(torch_threads))
     result: dict[str, list[int] | int] = json.loads(done.stdout.splitlines()[-1])
     return result
 
@@ -79,13 +84,7 @@ print(start_jax_cpu(2), flush=True)
 
 
 def test_a_later_job_with_other_threads_is_told_the_pool_it_gets() -> None:
-    done = subprocess.run(
-        [sys.executable, "-c", WARNING_PROBE],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=True,
-    )
+    done = _fresh_process(WARNING_PROBE)
     assert done.stdout.split() == ["1", "1", "1"]
     warnings = [line for line in done.stderr.splitlines() if "thread pool" in line]
     assert warnings == [
