@@ -64,6 +64,12 @@ def _atoms(ba: RawBuchi) -> list[str]:
     )
 
 
+def simulation_affordable(ba: RawBuchi) -> bool:
+    """Whether :func:`reduce_buchi` computes the simulation of ``ba`` (else it only merges
+    identical states)."""
+    return _within_budget(ba, cubes=_num_cubes(ba))
+
+
 def _within_budget(ba: RawBuchi, cubes: int) -> bool:
     atoms = len(_atoms(ba))
     if atoms <= LETTER_ATOMS:

@@ -26,7 +26,7 @@ from planner.ltl.formula import (
     to_text,
 )
 from planner.ltl.gba import Degeneralizer
-from planner.ltl.reduce import reduce_buchi
+from planner.ltl.reduce import reduce_buchi, simulation_affordable
 from planner.ltl.rewrite import simplify
 from planner.ltl.semantics import holds_on_lasso
 from planner.ltl.translate import raw_size, translate
@@ -196,3 +196,24 @@ def test_other_acceptance_orders_are_skipped_only_where_they_do_not_win() -> Non
         for other in others:
             assert raw_size(reduce_buchi(Degeneralizer(other).build())) >= kept, text
     assert skipped >= 20 and tried >= 10  # both branches are exercised
+
+
+def test_other_acceptance_orders_are_skipped_over_the_simulation_budget(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """An automaton too large for the simulation keeps every copy whichever the order:
+    ``gh_r(7)``'s other order is no smaller, and ``translate`` does not build it."""
+    vwaa = build_vwaa(simplify(to_nnf(parse(FAMILIES["gh-r"](7)))))
+    first = Degeneralizer(vwaa)
+    kept = reduce_buchi(first.build())
+    assert not first.one_level_per_set and not simulation_affordable(kept)
+    others = list(other_orders(vwaa))
+    assert others
+    for other in others:
+        assert raw_size(reduce_buchi(Degeneralizer(other).build())) >= raw_size(kept)
+
+    def no_other_order(_: object) -> list[object]:
+        raise AssertionError("another order was built over the simulation's budget")
+
+    monkeypatch.setattr("planner.ltl.translate.other_orders", no_other_order)
+    assert translate(FAMILIES["gh-r"](7)).num_states == kept.num_states
