@@ -11,10 +11,10 @@ made copies of a GBA state at several levels: of the 61 formulas of
 ``planner.ltl.families`` and of robot tasks (2-8 goals) with two orders, the second won on
 12, never on one without such copies (``<>g1 && ... && <>g10``, 1024 states, is one: half
 its translation time was the second order). Nor are they tried when the first automaton is
-too large for the simulation: the orders differ in the copies the simulation merges, and
-unreduced they keep them all (``gh_r(7)`` and ``gh_r(8)``: 2507 and 7265 states in both
-orders, half the translation time the second). Guards stay DNF cubes throughout; only the
-simulation, up to 8 atoms, reasons on letter sets.
+too large for the simulation: the orders differ mostly in the copies the simulation merges,
+and another order's automaton would go unreduced too (``gh_r(7)`` and ``gh_r(8)``: 2507 and
+7265 states in both orders, half the translation time the second). Guards stay DNF cubes
+throughout; only the simulation, up to 8 atoms, reasons on letter sets.
 """
 
 from __future__ import annotations
