@@ -34,10 +34,10 @@ from generality import ROBOTS, mission  # noqa: E402
 
 from envs.factory import stall_window  # noqa: E402
 from envs.nav_env import NavEnv  # noqa: E402
+from workers.env_defaults import STALL_ENV_DEFAULTS  # noqa: E402
 from workers.mission import MissionError, parse_mission  # noqa: E402
 from workers.run import stored_or_new_plan  # noqa: E402
 from workers.training import subtask_env  # noqa: E402
-from workers.training_spec import STALL_ENV_DEFAULTS  # noqa: E402
 
 FIXED = int(STALL_ENV_DEFAULTS["stall_steps"])
 """The default fixed window (steps)."""
