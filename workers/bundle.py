@@ -241,7 +241,7 @@ def _pct(value: float | None) -> str:
 def _steps(entry: SubtaskEntry) -> str:
     shown = str(entry.steps)
     if entry.policy_steps is not None:
-        shown += f" (policy of step {entry.policy_steps}, its best evaluation)"
+        shown += f" (policy of step {entry.policy_steps}, kept as its best)"
     if entry.repairs:
         shown += (
             f" (incl. {entry.repairs} hand-over repair round(s): success measured from the "

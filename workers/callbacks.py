@@ -24,6 +24,7 @@ from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 
 from workers.actor_average import AveragedActor
 from workers.atomic import save_with, write_json
+from workers.candidates import CandidateStore
 from workers.checkpoints import prune_checkpoints, save_checkpoint
 from workers.evaluation import SubtaskEvaluation
 from workers.hooks import CurvePoint, TrainingHooks
@@ -48,6 +49,7 @@ class ResumableEvalCallback(EvalCallback):
         hooks: TrainingHooks | None = None,
         averaged: AveragedActor | None = None,
         stopwatch: Stopwatch | None = None,
+        candidates: CandidateStore | None = None,
         **kwargs: Any,
     ) -> None:
         super().__init__(*args, **kwargs)
@@ -69,6 +71,8 @@ class ResumableEvalCallback(EvalCallback):
         self.hooks = hooks or TrainingHooks()
         self.averaged = averaged
         self.stopwatch = stopwatch or Stopwatch()
+        self.candidates = candidates
+        """Where the policies of the best evaluations are kept for the pick (None: not)."""
 
     def _on_step(self) -> bool:
         if not (self.eval_freq > 0 and self.n_calls % self.eval_freq == 0):
@@ -107,19 +111,32 @@ class ResumableEvalCallback(EvalCallback):
         return True
 
     def offer(self, model: BaseAlgorithm, steps: int, rate: float) -> None:
-        """Keep ``model`` (evaluated at ``rate`` after ``steps``) if it beats the kept one."""
-        if self.best_path is None or (self.best is not None and rate <= self.best[1]):
+        """Keep ``model`` (evaluated at ``rate`` after ``steps``) if it beats the kept one, and
+        among the candidates if it is one of the best."""
+        candidates = self.candidates
+        if candidates is not None and not candidates.wanted(steps, rate):
+            candidates = None
+        best_path = self.best_path
+        if best_path is not None and self.best is not None and rate <= self.best[1]:
+            best_path = None
+        if candidates is None and best_path is None:
             return
         if not self.hooks.may_write():
             self.fenced = True
             return
+        if candidates is not None:
+            candidates.add(steps, rate, model.save)
+        if best_path is None:
+            return
         self.best = (steps, rate)
-        save_with(self.best_path, model.save)
-        write_json(self.best_path.with_suffix(".json"), {"steps": steps, "success_rate": rate})
+        save_with(best_path, model.save)
+        write_json(best_path.with_suffix(".json"), {"steps": steps, "success_rate": rate})
 
     def restore(self, upto: int) -> None:
         """Load the earlier evaluations of ``log_path`` up to step ``upto`` (if any), and the
-        kept best policy if it is not from a later step."""
+        kept best policy and candidates if they are not from a later step."""
+        if self.candidates is not None:
+            self.candidates.restore(upto)
         if self.best_path is not None:
             record = self.best_path.with_suffix(".json")
             if record.is_file() and self.best_path.is_file():

@@ -132,6 +132,7 @@ def merged(before: TrainResult, repair: TrainResult) -> TrainResult:
         resumed_from=before.resumed_from,
         policy_steps=policy_steps,
         curve=before.curve + [(offset + s, r) for s, r in repair.curve],
+        selection=[(offset + s, r, n) for s, r, n in repair.selection],
         seconds=before.seconds + repair.seconds,
         parts=added(before.parts, repair.parts),
         repairs=before.repairs + 1,

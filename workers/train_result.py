@@ -35,6 +35,9 @@ class TrainResult:
     """Steps of the policy kept when the budget ran out (or a plateau stopped training) before
     the target: that of the best periodic evaluation (the first with the highest success rate),
     if better than the last one; None: the policy at ``steps``."""
+    selection: list[tuple[int, float, int]] = field(default_factory=list)
+    """With ``pick_candidates``, ``(steps, success rate, episodes)`` of every policy the pick
+    evaluated (``workers.policy_pick``): the kept one is at ``policy_steps``."""
     curve: list[tuple[int, float]] = field(default_factory=list)
     """``(steps, success rate)`` of every periodic evaluation (and of the start check at step 0
     of a residual agent, ``workers.residual``)."""
@@ -57,6 +60,7 @@ class TrainResult:
         out = asdict(self)
         out["curve"] = [list(p) for p in self.curve]
         out["confirmations"] = [list(p) for p in self.confirmations]
+        out["selection"] = [list(p) for p in self.selection]
         return out
 
     @classmethod
@@ -64,6 +68,7 @@ class TrainResult:
         doc = dict(doc)
         doc["curve"] = [(int(s), float(r)) for s, r in doc.get("curve", [])]
         doc["confirmations"] = [stored_confirmation(c) for c in doc.get("confirmations", [])]
+        doc["selection"] = [(int(s), float(r), int(n)) for s, r, n in doc.get("selection", [])]
         return cls(**doc)
 
 

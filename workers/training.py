@@ -21,6 +21,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import torch
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.monitor import Monitor
@@ -31,7 +32,13 @@ from envs.nav_env import NavEnv
 from planner.geometry.pose import Pose
 from planner.plan import MissionPlan
 from workers.actor_average import AveragedActor
-from workers.agents import ALGORITHMS, TrainingError, keep_best_policy, load_agent
+from workers.agents import (
+    ALGORITHMS,
+    TrainingError,
+    algorithm_class,
+    keep_best_policy,
+    load_agent,
+)
 from workers.atomic import save_with, write_json
 from workers.callbacks import (
     ActorBurnIn,
@@ -44,12 +51,14 @@ from workers.callbacks import (
     StopOnSuccessRate,
     plateaued,
 )
+from workers.candidates import CandidateStore
 from workers.checkpoints import prune_checkpoints, save_checkpoint
 from workers.evaluation import SubtaskEvaluation, evaluate_subtask, seed_lanes, successes_needed
 from workers.hooks import CurvePoint, TrainingHooks
 from workers.jobs import SubtaskJob
 from workers.mission import MissionSpec
 from workers.policy_act import deterministic_act
+from workers.policy_pick import Trial, pick_policy
 from workers.residual import StartCheck, recorded_start, start_check
 from workers.stopwatch import Stopwatch
 from workers.train_result import Confirmation, Stopped, TrainResult, stored_confirmation
@@ -65,11 +74,12 @@ CONFIRMATIONS = "confirmations.json"
 """Every confirmation of the early stop so far, ``[[steps, success rate, episodes], ...]``: a
 resumed job goes on with the next confirmation seed."""
 
-PERIODIC_SEED, REPORT_SEED, CONFIRMATION_SEED = 1, 2, 3
+PERIODIC_SEED, REPORT_SEED, CONFIRMATION_SEED, SELECTION_SEED = 1, 2, 3, 500
 """Offsets from a job's seed of its evaluations' seeds. The periodic evaluations (and the start
-check's quick one) and the confirmations (confirmation ``n`` at ``CONFIRMATION_SEED + n``)
-decide: the early stop and the kept policy. The final evaluation at ``REPORT_SEED`` is run once,
-after every decision, and decides nothing: it is the one reported."""
+check's quick one), the confirmations (confirmation ``n`` at ``CONFIRMATION_SEED + n``) and the
+pick's (``pick_candidates``, at ``SELECTION_SEED``, below hand-over repair's probe seeds)
+decide: the early stop and the kept policy. The final evaluation at ``REPORT_SEED`` is run
+once, after every decision, and decides nothing: it is the one reported."""
 
 
 def subtask_env(
@@ -232,6 +242,11 @@ class _SubtaskTraining:
     def evaluation(self, episodes: int, seed: int, needed: int = 0) -> SubtaskEvaluation:
         return evaluate_subtask(self.act, self.eval_env.envs, episodes, seed, needed)
 
+    def candidates(self) -> CandidateStore | None:
+        """The store of the best evaluations' policies for the pick (None: no pick)."""
+        keep = self.job.training.pick_candidates
+        return None if keep is None else CandidateStore(self.out / "candidates", keep)
+
     def start_check(self) -> StartCheck | None:
         """A fresh residual agent is its feed-forward: measure it before any update (None: not
         such an agent); the measurement is the curve's step-0 point."""
@@ -268,6 +283,7 @@ class _SubtaskTraining:
             hooks=hooks,
             averaged=averaged,
             stopwatch=self.stopwatch,
+            candidates=self.candidates(),
         )
         evaluation.restore(self.resumed)
         if start is not None:
@@ -324,7 +340,7 @@ class _SubtaskTraining:
             confirmations=list(self.confirmations),
         )
         if stopped in ("budget", "plateau"):
-            model, result.policy_steps = keep_best_policy(model, evaluation, training, self.env)
+            model, result.policy_steps, result.selection = self.kept_policy(evaluation)
             self.model, self.act = model, deterministic_act(model.policy)
         if stopped != "cancelled" and not hooks.may_write():
             result.stopped = stopped = "cancelled"
@@ -335,6 +351,28 @@ class _SubtaskTraining:
             result.model_path = str(final)
         hooks.progress(steps, evaluation.last_success_rate, training.n_timesteps)
         return result
+
+    def kept_policy(
+        self, evaluation: ResumableEvalCallback
+    ) -> tuple[BaseAlgorithm, int | None, list[Trial]]:
+        """The policy to keep after the budget or a plateau, its steps (None: the last) and
+        the pick's trials: ``workers.policy_pick`` with ``pick_candidates``, else the best
+        periodic evaluation's when it beat the last."""
+        training, model = self.job.training, self.model
+        if evaluation.candidates is None:
+            return (*keep_best_policy(model, evaluation, training, self.env), [])
+        episodes, seed = training.final_eval_episodes, self.job.seed + SELECTION_SEED
+
+        def load(path: Path) -> BaseAlgorithm:
+            return algorithm_class(training).load(path, env=self.env, device="cpu")
+
+        def evaluate(policy: BaseAlgorithm, needed: int) -> SubtaskEvaluation:
+            act = deterministic_act(policy.policy)
+            return evaluate_subtask(act, self.eval_env.envs, episodes, seed, needed)
+
+        with self.stopwatch.part("pick"):
+            last = int(model.num_timesteps)
+            return pick_policy(model, last, evaluation.candidates.ranked(), load, evaluate)
 
     def close(self) -> None:
         self.env.close()

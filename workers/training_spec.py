@@ -135,6 +135,14 @@ class TrainingSpec(BaseModel):
         "below it a flat curve is a sub-task still to learn (SAC's often stay flat for tens of "
         "thousands of steps before they rise), which trains on.",
     )
+    pick_candidates: int | None = Field(
+        None,
+        ge=1,
+        description="When the budget runs out or a plateau stops training, evaluate the "
+        "policies of this many best periodic evaluations and the last one on "
+        "final_eval_episodes episodes of seeds of their own and keep the best (None: keep the "
+        "best periodic evaluation's if it beat the last; 50 episodes rank by luck).",
+    )
     actor_burn_in: int = Field(
         0,
         ge=0,

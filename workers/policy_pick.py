@@ -1,0 +1,53 @@
+"""Which policy a job keeps when its budget ran out or it stopped on a plateau, with
+``training.pick_candidates``: the policies of its best periodic evaluations
+(``workers.candidates``) and its last one, each evaluated on the same seeds of their own.
+
+A periodic evaluation of 50 episodes that made 92 % may be a policy of 81 % (the racecar's
+controller on seed 15's forest, ``bench/LEARNING.md``): the first best of them keeps what luck
+ranked first. Every candidate here runs the same ``episodes`` from the same seed (common
+starts, so the comparison is of the policies), the best periodic one first; each later one
+stops once it can no longer beat the best so far. The one with most successes is kept, the
+earlier on a tie.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from functools import partial
+from pathlib import Path
+from typing import TypeVar
+
+from workers.candidates import Candidate
+from workers.evaluation import SubtaskEvaluation
+
+Model = TypeVar("Model")
+
+Trial = tuple[int, float, int]
+"""``(steps, success rate, episodes)`` of one candidate's evaluation in the pick; one that
+stopped once it could no longer win has its rate over the episodes it ran."""
+
+
+def pick_policy(
+    last: Model,
+    last_steps: int,
+    candidates: Sequence[Candidate],
+    load: Callable[[Path], Model],
+    evaluate: Callable[[Model, int], SubtaskEvaluation],
+) -> tuple[Model, int | None, list[Trial]]:
+    """The policy to keep of ``candidates`` (best first) and ``last`` (the policy at
+    ``last_steps``), ``evaluate(policy, needed)`` deciding (it may stop once ``needed``
+    successes are out of reach): the kept one, its steps (None: ``last``) and every trial."""
+    entries: list[tuple[int, Callable[[], Model]]] = [
+        (c.steps, partial(load, c.path)) for c in candidates if c.steps != last_steps
+    ]
+    entries.append((last_steps, lambda: last))
+    kept, kept_steps, most = last, last_steps, -1
+    trials: list[Trial] = []
+    for steps, policy in entries:
+        model = policy()
+        check = evaluate(model, most + 1)
+        trials.append((steps, check.success_rate, check.episodes))
+        successes = round(check.success_rate * check.episodes)
+        if successes > most:
+            kept, kept_steps, most = model, steps, successes
+    return kept, None if kept_steps == last_steps else kept_steps, trials
