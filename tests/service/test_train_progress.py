@@ -3,7 +3,8 @@ once it is done, even far below its budget."""
 
 from __future__ import annotations
 
-from service.train_progress import RemainingOrElapsed, TrainProgress
+from service.train_progress import RemainingOrElapsed, TrainProgress, kept_policy
+from workers.train_result import TrainResult
 
 
 def test_a_sub_task_done_at_its_target_shows_how_long_it_ran() -> None:
@@ -20,3 +21,16 @@ def test_a_sub_task_done_at_its_target_shows_how_long_it_ran() -> None:
     assert done.fields["took"] is not None
     bars.show(0, 12_000, 0.5, 180_000, False)  # a repair round trains it again
     assert not column.render(bars.progress.tasks[0]).plain.startswith("done")
+
+
+def test_the_result_names_the_kept_policy_and_how_it_was_picked() -> None:
+    result = TrainResult(
+        subtask=0, seed=0, model_path="m.zip", steps=150_000, resumed_from=0, stopped="budget"
+    )
+    assert kept_policy(result) == ""
+    result.policy_steps = 130_000
+    assert kept_policy(result) == ", policy of step 130000 (its best evaluation)"
+    result.selection = [(0, 0.81, 200), (130_000, 0.905, 200), (150_000, 0.6, 40)]
+    assert kept_policy(result) == (
+        ", policy of step 130000 (the pick's best of 3: 90.5 % of 200 trials)"
+    )
