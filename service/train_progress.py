@@ -21,6 +21,7 @@ from rich.progress import (
 )
 from rich.text import Text
 
+from workers.policy_pick import kept_policy_text
 from workers.stopwatch import largest_first
 
 if TYPE_CHECKING:
@@ -87,18 +88,11 @@ def time_split(seconds: float, parts: dict[str, float]) -> str:
     return f" in {seconds:.0f} s ({largest_first(parts)})" if parts else ""
 
 
-def kept_policy(result: TrainResult) -> str:
-    """``, policy of step 130000 (the pick's best of 4: 90.5 % of 200 trials)``: the policy a
-    job kept when not its last ('' for the last)."""
-    if result.policy_steps is None:
-        return ""
-    shown = f", policy of step {result.policy_steps}"
-    trial = next((t for t in result.selection if t[0] == result.policy_steps), None)
-    if trial is None:
-        return shown + " (its best evaluation)"
-    _, rate, episodes = trial
-    count = len(result.selection)
-    return shown + f" (the pick's best of {count}: {100 * rate:.1f} % of {episodes} trials)"
+def how_stopped(result: TrainResult) -> str:
+    """``budget; policy of step 130000, its best evaluation``: why a job's training ended and
+    the policy it kept when not its last."""
+    kept = kept_policy_text(result.policy_steps, result.selection)
+    return f"{result.stopped}; {kept}" if kept else result.stopped
 
 
 def result_lines(result: RunResult) -> list[str]:
@@ -110,8 +104,7 @@ def result_lines(result: RunResult) -> list[str]:
         rate = final.get("success_rate")
         shown = "-" if rate is None else f"{100 * rate:.1f} %"
         lines.append(
-            f"  sub-task {r.subtask}: {r.steps} steps ({r.stopped}){kept_policy(r)}, "
-            f"success {shown} over "
+            f"  sub-task {r.subtask}: {r.steps} steps ({how_stopped(r)}), success {shown} over "
             f"{final.get('episodes', 0)} episodes{time_split(r.seconds, r.parts)}"
         )
     for repair in result.repairs:

@@ -47,6 +47,7 @@ from workers.manifest import (
     SubtaskEntry,
 )
 from workers.mission import MissionSpec
+from workers.policy_pick import kept_policy_text
 from workers.train_result import TrainResult
 
 __all__ = ["BundleError", "ConcatenatedPolicy", "read_bundle", "write_bundle"]
@@ -100,6 +101,7 @@ def manifest_for(
             seed=seed,
             steps=result.steps,
             policy_steps=result.policy_steps,
+            selection=result.selection,
             stopped=result.stopped,
             repairs=result.repairs,
             curve=result.curve,
@@ -241,7 +243,7 @@ def _pct(value: float | None) -> str:
 def _steps(entry: SubtaskEntry) -> str:
     shown = str(entry.steps)
     if entry.policy_steps is not None:
-        shown += f" (policy of step {entry.policy_steps}, kept as its best)"
+        shown += f" ({kept_policy_text(entry.policy_steps, entry.selection)})"
     if entry.repairs:
         shown += (
             f" (incl. {entry.repairs} hand-over repair round(s): success measured from the "

@@ -61,6 +61,9 @@ class SubtaskEntry(BaseModel):
     steps: int
     policy_steps: int | None = None
     """The kept policy's steps when not the last (``TrainResult.policy_steps``)."""
+    selection: list[tuple[int, float, int]] = []
+    """The pick's trials, ``(steps, success rate, episodes)`` (``TrainResult.selection``;
+    empty without ``training.pick_candidates``)."""
     stopped: str
     repairs: int = 0
     """Hand-over repair rounds (``TrainResult.repairs``)."""

@@ -51,3 +51,16 @@ def pick_policy(
         if successes > most:
             kept, kept_steps, most = model, steps, successes
     return kept, None if kept_steps == last_steps else kept_steps, trials
+
+
+def kept_policy_text(policy_steps: int | None, selection: Sequence[Trial]) -> str:
+    """``policy of step 130000, the pick's best of 4: 90.5 % of 200 trials``: the policy a job
+    kept when not its last, and how ('' for the last)."""
+    if policy_steps is None:
+        return ""
+    trial = next((t for t in selection if t[0] == policy_steps), None)
+    if trial is None:
+        return f"policy of step {policy_steps}, its best evaluation"
+    rate, episodes = 100 * trial[1], trial[2]
+    how = f"the pick's best of {len(selection)}: {rate:.1f} % of {episodes} trials"
+    return f"policy of step {policy_steps}, {how}"

@@ -3,7 +3,7 @@ once it is done, even far below its budget."""
 
 from __future__ import annotations
 
-from service.train_progress import RemainingOrElapsed, TrainProgress, kept_policy
+from service.train_progress import RemainingOrElapsed, TrainProgress, how_stopped
 from workers.train_result import TrainResult
 
 
@@ -27,10 +27,10 @@ def test_the_result_names_the_kept_policy_and_how_it_was_picked() -> None:
     result = TrainResult(
         subtask=0, seed=0, model_path="m.zip", steps=150_000, resumed_from=0, stopped="budget"
     )
-    assert kept_policy(result) == ""
+    assert how_stopped(result) == "budget"
     result.policy_steps = 130_000
-    assert kept_policy(result) == ", policy of step 130000 (its best evaluation)"
+    assert how_stopped(result) == "budget; policy of step 130000, its best evaluation"
     result.selection = [(0, 0.81, 200), (130_000, 0.905, 200), (150_000, 0.6, 40)]
-    assert kept_policy(result) == (
-        ", policy of step 130000 (the pick's best of 3: 90.5 % of 200 trials)"
+    assert how_stopped(result) == (
+        "budget; policy of step 130000, the pick's best of 3: 90.5 % of 200 trials"
     )

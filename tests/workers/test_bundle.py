@@ -3,6 +3,7 @@ concatenated policy equal to the trained models, and every kind of bad zip refus
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import sys
@@ -100,6 +101,23 @@ def test_bundle_members_and_manifest(
         assert entry["policy_kwargs"]["net_arch"] == [8]
     assert manifest["mission_evaluation"]["episodes"] == 1
     assert "tiny-gf2" in card and "| 3 | suffix |" in card
+
+
+def test_the_manifest_and_card_say_how_the_kept_policy_was_picked(
+    trained: tuple[MissionSpec, MissionPlan, list[TrainResult], Path], tmp_path: Path
+) -> None:
+    mission, plan, results, _ = trained
+    trials = [(40, 0.9, 200), (60, 0.5, 20)]
+    picked = dataclasses.replace(results[0], policy_steps=40, selection=trials)
+    seeds = list(range(len(plan.subtasks)))
+    bundle = write_bundle(tmp_path / "b.zip", mission, plan, [picked, *results[1:]], None, seeds)
+    with zipfile.ZipFile(bundle) as archive:
+        manifest = json.loads(archive.read("manifest.json"))
+        card = archive.read("README.md").decode()
+    assert manifest["subtasks"][0]["selection"] == [list(t) for t in trials]
+    assert manifest["subtasks"][1]["selection"] == []
+    assert "policy of step 40, the pick's best of 2: 90.0 % of 200 trials" in card
+    assert read_bundle(bundle)[0].subtasks[0].selection == trials
 
 
 def test_models_load_with_plain_sac(
