@@ -71,6 +71,8 @@ class Row:
     """``training.env`` overrides (a variant of the method, named in the folder)."""
     training: tuple[tuple[str, Any], ...] = ()
     """Other ``training`` overrides (``handover_rounds``, ...; named in the folder too)."""
+    fixed: tuple[tuple[str, Any], ...] = ()
+    """``training`` overrides a bench holds for all its rows, not named in the folder."""
 
     @property
     def variant(self) -> str:
@@ -133,6 +135,7 @@ def load_mission(name: str, row: Row) -> MissionSpec:
     """The named example with the row's method, seed and budget."""
     document = yaml.safe_load((ROOT / "examples" / f"{name}.yaml").read_text())
     training = document.setdefault("training", {})
+    training.update(dict(row.fixed))
     training.update(dict(row.training))
     training["seed"] = row.seed
     training.setdefault("env", {}).update(dict(row.env))

@@ -111,3 +111,14 @@ def test_a_run_with_a_record_is_not_trained_again_where_its_folder_is_gone(
     table1.train(TASK, "tl", "shaped", 0, out, records, jobs=2)
 
     assert trained == ["tl"]  # the one without a record
+
+
+def test_its_runs_keep_one_budget_whatever_the_stop_defaults() -> None:
+    from train import load_mission
+
+    task = next(t for t in table1.TASKS if t.name == "car-phi2-fin")
+    row = table1.run_row(task, "ned", "paper", 1)
+    assert row.folder == "car-phi2-fin/ned+handover_rounds=0+protocol=paper/seed1"
+    training = load_mission(task.name, row).training
+    assert training.plateau_evals is None and training.pick_candidates is None
+    assert training.n_timesteps == task.budget and training.handover_rounds == 0

@@ -30,6 +30,10 @@ TINY: dict[str, Any] = {
         "final_eval_episodes": 2,
         "mission_episodes": 2,
         "handover_steps": 200,
+        # the plateau stop and the pick are tested on their own (test_training,
+        # test_policy_pick): with one-episode evaluations they would end most jobs here early
+        "plateau_evals": None,
+        "pick_candidates": None,
         # these tests train an agent: without the point robot's default feed-forward, which
         # meets such short sub-tasks at step 0
         "env": {"guide_feedforward": None},

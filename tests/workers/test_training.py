@@ -73,6 +73,7 @@ def test_defaults_are_the_papers_network() -> None:
     spec = TrainingSpec()
     assert spec.algorithm == "sac" and spec.target_success == 0.95
     assert spec.final_eval_episodes == 200 and spec.torch_threads == 1
+    assert spec.plateau_evals == 6 and spec.pick_candidates == 3  # measured: bench/LEARNING.md
     assert spec.policy_kwargs() == {"net_arch": [64, 64, 64], "activation_fn": "relu"}
 
 
