@@ -5,9 +5,9 @@ A confirmation (``training.final_eval_episodes`` trials on a seed of its own) is
 periodic evaluation reaches ``training.target_success``; it now stops at the failure that puts
 the target out of reach, which changes no decision (a confirmation that would pass never stops;
 one that stops fails either way). For every sub-task policy of a finished ``ltlnav train`` run
-(``model.zip`` and the kept ``best_model.zip``) and the first ``--confirmations`` confirmation
-seeds from the mission's seed, both forms run in the job's evaluation lanes, alternated, best of
-``--repeats``: episodes run, success rate, CPU seconds.
+(``model.zip`` and, in runs without the pick, the kept ``best_model.zip``) and the first
+``--confirmations`` confirmation seeds from the mission's seed, both forms run in the job's
+evaluation lanes, alternated, best of ``--repeats``: episodes run, success rate, CPU seconds.
 
 Run ``.venv/bin/python bench/confirmation_cost.py FOLDER`` (a ``bench/train_speed.py`` row folder:
 ``mission.yaml`` and ``run/``).

@@ -53,7 +53,13 @@ from workers.callbacks import (
 )
 from workers.candidates import CandidateStore
 from workers.checkpoints import prune_checkpoints, save_checkpoint
-from workers.evaluation import SubtaskEvaluation, evaluate_subtask, seed_lanes, successes_needed
+from workers.evaluation import (
+    Act,
+    SubtaskEvaluation,
+    evaluate_subtask,
+    seed_lanes,
+    successes_needed,
+)
 from workers.hooks import CurvePoint, TrainingHooks
 from workers.jobs import SubtaskJob
 from workers.mission import MissionSpec
@@ -239,8 +245,11 @@ class _SubtaskTraining:
         with self.stopwatch.part("start check"):
             return self.evaluation(episodes, self.job.seed + PERIODIC_SEED)
 
-    def evaluation(self, episodes: int, seed: int, needed: int = 0) -> SubtaskEvaluation:
-        return evaluate_subtask(self.act, self.eval_env.envs, episodes, seed, needed)
+    def evaluation(
+        self, episodes: int, seed: int, needed: int = 0, act: Act | None = None
+    ) -> SubtaskEvaluation:
+        """``evaluate_subtask`` of ``act`` (None: the current policy's) in the job's lanes."""
+        return evaluate_subtask(act or self.act, self.eval_env.envs, episodes, seed, needed)
 
     def candidates(self) -> CandidateStore | None:
         """The store of the best evaluations' policies for the pick (None: no pick)."""
@@ -278,7 +287,7 @@ class _SubtaskTraining:
             warn=False,
             verbose=0,
             callback_after_eval=stopper,
-            best_path=self.out / "best_model.zip",
+            best_path=None if training.pick_candidates else self.out / "best_model.zip",
             start_rate=None if begun is None else begun.success_rate,
             hooks=hooks,
             averaged=averaged,
@@ -367,8 +376,7 @@ class _SubtaskTraining:
             return algorithm_class(training).load(path, env=self.env, device="cpu")
 
         def evaluate(policy: BaseAlgorithm, needed: int) -> SubtaskEvaluation:
-            act = deterministic_act(policy.policy)
-            return evaluate_subtask(act, self.eval_env.envs, episodes, seed, needed)
+            return self.evaluation(episodes, seed, needed, deterministic_act(policy.policy))
 
         with self.stopwatch.part("pick"):
             last = int(model.num_timesteps)

@@ -124,6 +124,7 @@ def test_a_job_picks_its_kept_policy_on_seeds_of_their_own(
         "policy_300.zip",
     ]
     assert "pick" in result.parts
+    assert not (tmp_path / "best_model.zip").exists()  # the pick's store holds the best
 
 
 def test_pick_candidates_must_be_positive() -> None:
