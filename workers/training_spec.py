@@ -125,9 +125,10 @@ class TrainingSpec(BaseModel):
         ge=1,
         description="Stop training once the best periodic rate is >= plateau_from and this "
         "many evaluations in a row, their median within 2 standard errors of plateau_from (a "
-        "fall is no plateau), have not beaten it; keep the pick's policy (None: never; 6 with "
-        "pick_candidates 3 made the same missions as neither in 0.67-0.90 of the wall time "
-        "on 3 fresh seeds of the racecar's forest, bench/LEARNING.md).",
+        "fall is no plateau), have not beaten it; the kept policy is chosen as after the "
+        "budget (see pick_candidates). None: never. 6 with pick_candidates 3 made the same or "
+        "better missions than without either in 0.67-0.90 of the wall time on 3 fresh seeds of "
+        "the racecar's forest (bench/LEARNING.md).",
     )
     plateau_from: float = Field(
         0.9,
