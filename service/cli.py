@@ -173,7 +173,14 @@ def train(
     folder = out if out is not None else Path("runs") / spec.name
     with TrainProgress() as bars:
         try:
-            result = run_pipeline(spec, folder, jobs=jobs, on_progress=bars.show, limits=limits)
+            result = run_pipeline(
+                spec,
+                folder,
+                jobs=jobs,
+                on_progress=bars.show,
+                limits=limits,
+                on_evaluating=bars.evaluating,
+            )
         except LtlnavError as error:
             raise _fail(error) from error
     for line in result_lines(result):

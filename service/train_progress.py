@@ -1,7 +1,8 @@
 """What ``ltlnav train`` shows: a progress bar per sub-task, with its latest success rate, the
-time left while it trains and the time it took once it is done (a job that stopped at its
-target long before its budget shows how long it ran, not the hours its budget would take);
-then the lines of the result (``result_lines``)."""
+time left while it trains, the evaluation it runs once its training has ended, and the time it
+took once it is done (a job that stopped at its target long before its budget shows how long
+it ran, not the hours its budget would take); then the lines of the result
+(``result_lines``)."""
 
 from __future__ import annotations
 
@@ -30,15 +31,18 @@ if TYPE_CHECKING:
 
 
 class RemainingOrElapsed(ProgressColumn):
-    """The estimated time left while a job runs, the time it ran once it is done (the
-    ``took`` field, seconds)."""
+    """The estimated time left while a job trains, the evaluation it runs once its training
+    has ended (the ``doing`` field), the time it ran once it is done (the ``took`` field,
+    seconds)."""
 
     def __init__(self) -> None:
         super().__init__()
         self.remaining = TimeRemainingColumn()
 
     def render(self, task: Task) -> Text:
-        took = task.fields.get("took")
+        took, doing = task.fields.get("took"), task.fields.get("doing")
+        if took is None and doing:
+            return Text(doing, style="progress.remaining")
         if took is None:
             return self.remaining.render(task)
         return Text(f"done in {timedelta(seconds=round(took))}", style="progress.elapsed")
@@ -46,7 +50,8 @@ class RemainingOrElapsed(ProgressColumn):
 
 class TrainProgress:
     """``show(subtask, steps, success_rate, total, done)`` for ``workers.pipeline``'s
-    ``on_progress``, drawn as rich progress bars while the block runs."""
+    ``on_progress`` and ``evaluating(subtask, what)`` for its ``on_evaluating``, drawn as rich
+    progress bars while the block runs."""
 
     def __init__(self) -> None:
         self.progress = Progress(
@@ -75,11 +80,21 @@ class TrainProgress:
         task = self.tasks.get(subtask)
         if task is None:
             task = self.tasks[subtask] = self.progress.add_task(
-                f"sub-task {subtask}", total=total, success="-", took=None
+                f"sub-task {subtask}", total=total, success="-", took=None, doing=None
             )
         shown = "-" if rate is None else f"{100 * rate:.0f} %"
-        took = self.progress.tasks[task].elapsed if done else None
-        self.progress.update(task, completed=steps, total=total, success=shown, took=took)
+        current = self.progress.tasks[task]
+        took = current.elapsed if done else None
+        still = steps == current.completed and current.fields.get("took") is None
+        doing = current.fields.get("doing") if still else None
+        self.progress.update(
+            task, completed=steps, total=total, success=shown, took=took, doing=doing
+        )
+
+    def evaluating(self, subtask: int, what: str) -> None:
+        task = self.tasks.get(subtask)
+        if task is not None:
+            self.progress.update(task, doing=what)
 
 
 def time_split(seconds: float, parts: dict[str, float]) -> str:

@@ -36,6 +36,11 @@ class TrainingHooks:
     def curve_point(self, point: CurvePoint) -> None:
         """A new point of the learning curve."""
 
+    def evaluating(self, what: str) -> None:
+        """Training has ended and the job evaluates before it returns; ``what`` says which
+        evaluation (``picking the kept policy: 2 of 4``, ``final evaluation: 200 trials``).
+        No step is trained after it, so no time is left to estimate from steps."""
+
     def checkpoint(self, steps: int, path: Path) -> None:
         """A checkpoint (model and replay buffer) was saved at ``path`` after ``steps``."""
 

@@ -34,6 +34,10 @@ PipelineProgress = Callable[[int, int, float | None, int, bool], None]
 """``on_progress(subtask, steps, success_rate, total, done)``, called in the parent process;
 ``done`` once the job has finished (at its budget, its target or a cancel)."""
 
+PipelineEvaluating = Callable[[int, str], None]
+"""``on_evaluating(subtask, what)``, called in the parent process when a job's training has
+ended and it evaluates (``TrainingHooks.evaluating``)."""
+
 
 class _QueueProgress(TrainingHooks):
     """A job's progress put on the parent's queue, its steps counted from ``offset`` (a repair
@@ -50,9 +54,13 @@ class _QueueProgress(TrainingHooks):
     def progress(self, steps: int, success_rate: float | None, total: int) -> None:
         self.put(steps, success_rate, total, False)
 
+    def evaluating(self, what: str) -> None:
+        self.updates.put(("evaluating", (self.subtask, what)))
+
     def put(self, steps: int, success_rate: float | None, total: int, done: bool) -> None:
         offset = self.offset
-        self.updates.put((self.subtask, offset + steps, success_rate, offset + total, done))
+        update = (self.subtask, offset + steps, success_rate, offset + total, done)
+        self.updates.put(("progress", update))
 
 
 def process_alive(pid: int) -> bool:
@@ -118,13 +126,14 @@ def run_pipeline(
     jobs: int | None = None,
     on_progress: PipelineProgress | None = None,
     limits: AdmissionLimits | None = None,
+    on_evaluating: PipelineEvaluating | None = None,
 ) -> RunResult:
     """Open the run of ``mission`` in ``out_dir``, train its sub-tasks (``jobs`` processes,
     default the CPU count), roll out the concatenated policy (its lanes shared out over the
     same processes), repair hand-overs while the mission is below its target and write
     ``out_dir/bundle.zip``. The training section
     (budget, seed, ...) is the mission's own: override it on the spec before calling.
-    ``limits``: see ``MissionRun.open``."""
+    ``limits``: see ``MissionRun.open``. ``on_evaluating``: see ``PipelineEvaluating``."""
     run = MissionRun.open(mission, out_dir, limits)
     first = run.jobs()
     if on_progress is not None:  # every sub-task shows up at once, in order
@@ -138,7 +147,9 @@ def run_pipeline(
     with manager:
         updates = manager.Queue()
         done = threading.Event()
-        relay = threading.Thread(target=_relay, args=(updates, done, on_progress), daemon=True)
+        relay = threading.Thread(
+            target=_relay, args=(updates, done, on_progress, on_evaluating), daemon=True
+        )
         relay.start()
         try:
             with ProcessPoolExecutor(
@@ -171,7 +182,12 @@ def run_pipeline(
             relay.join()
 
 
-def _relay(updates: Any, done: threading.Event, on_progress: PipelineProgress | None) -> None:
+def _relay(
+    updates: Any,
+    done: threading.Event,
+    on_progress: PipelineProgress | None,
+    on_evaluating: PipelineEvaluating | None,
+) -> None:
     while True:
         try:
             item = updates.get(timeout=0.2)
@@ -181,5 +197,8 @@ def _relay(updates: Any, done: threading.Event, on_progress: PipelineProgress | 
             continue
         except (EOFError, OSError):
             return
-        if on_progress is not None:
-            on_progress(*item)
+        kind, update = item
+        if kind == "progress" and on_progress is not None:
+            on_progress(*update)
+        elif kind == "evaluating" and on_evaluating is not None:
+            on_evaluating(*update)

@@ -33,17 +33,20 @@ def pick_policy(
     candidates: Sequence[Candidate],
     load: Callable[[Path], Model],
     evaluate: Callable[[Model, int], SubtaskEvaluation],
+    announce: Callable[[int, int], None] = lambda number, of: None,
 ) -> tuple[Model, int | None, list[Trial]]:
     """The policy to keep of ``candidates`` (best first) and ``last`` (the policy at
     ``last_steps``), ``evaluate(policy, needed)`` deciding (it may stop once ``needed``
-    successes are out of reach): the kept one, its steps (None: ``last``) and every trial."""
+    successes are out of reach): the kept one, its steps (None: ``last``) and every trial.
+    ``announce(number, of)`` is called before the ``number``-th of ``of`` policies runs."""
     entries: list[tuple[int, Callable[[], Model]]] = [
         (c.steps, partial(load, c.path)) for c in candidates if c.steps != last_steps
     ]
     entries.append((last_steps, lambda: last))
     kept, kept_steps, most = last, last_steps, -1
     trials: list[Trial] = []
-    for steps, policy in entries:
+    for number, (steps, policy) in enumerate(entries, start=1):
+        announce(number, len(entries))
         model = policy()
         check = evaluate(model, most + 1)
         trials.append((steps, check.success_rate, check.episodes))

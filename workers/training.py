@@ -222,6 +222,7 @@ class _SubtaskTraining:
     def final_evaluation(self) -> SubtaskEvaluation:
         """The reported evaluation (``final_eval_episodes`` from the real starts)."""
         episodes = self.job.training.final_eval_episodes
+        self.hooks.evaluating(f"final evaluation: {episodes} trials")
         with self.stopwatch.part("final evaluation"):
             return self.evaluation(episodes, self.job.seed + REPORT_SEED)
 
@@ -380,7 +381,11 @@ class _SubtaskTraining:
 
         with self.stopwatch.part("pick"):
             last = int(model.num_timesteps)
-            return pick_policy(model, last, evaluation.candidates.ranked(), load, evaluate)
+            ranked = evaluation.candidates.ranked()
+            return pick_policy(model, last, ranked, load, evaluate, self.announce_pick)
+
+    def announce_pick(self, number: int, of: int) -> None:
+        self.hooks.evaluating(f"picking the kept policy: {number} of {of}")
 
     def close(self) -> None:
         self.env.close()

@@ -89,9 +89,16 @@ class JobView(BaseModel):
     steps_done: int
     budget: int
     success_rate: float | None
-    eta_seconds: float | None
+    eta_seconds: float | None = Field(
+        description="Estimated seconds left of the training (null before it can be estimated "
+        "and once the training has ended)."
+    )
     attempts: int
-    reason: str | None
+    reason: str | None = Field(
+        description="Why the job is where it is: a retry's cause while queued, the evaluation "
+        "it runs once its training has ended (e.g. 'picking the kept policy: 2 of 4'), a "
+        "failure's error."
+    )
     final: dict[str, Any] | None = Field(
         description="The final evaluation of the trained sub-policy (when done)."
     )

@@ -91,6 +91,10 @@ class JobMonitor(TrainingHooks):
         self._saved: list[tuple[int, Path]] = []
         self._latest: tuple[int, float | None, int] | None = None
         """The last progress not yet written (throttled)."""
+        self._evaluating: str | None = None
+        """The evaluation the job runs once its training has ended, not yet written."""
+        self._trained = False
+        """Whether the job's training has ended (no time left to estimate from steps)."""
 
     @property
     def stopping(self) -> bool:
@@ -154,17 +158,23 @@ class JobMonitor(TrainingHooks):
         if first or steps >= total or now - self._last_write >= self.heartbeat_seconds:
             self._write()
 
+    def evaluating(self, what: str) -> None:
+        """Written at once: the job's reason names the evaluation, its ETA is cleared."""
+        self._evaluating, self._trained = what, True
+        self._write()
+
     def flush(self) -> None:
         """Write what is not yet recorded (at the end of a run): the last progress, curve
         points and checkpoints."""
-        if self._latest or self._points or self._saved or self._drop_after is not None:
+        pending = self._latest or self._points or self._saved or self._evaluating
+        if pending or self._drop_after is not None:
             self._write()
 
     def _record_progress(self, session: Session) -> None:
         if self._latest is None:
             return
         steps, success_rate, total = self._latest
-        eta = self._eta(steps, max(total - steps, 0))
+        eta = None if self._trained else self._eta(steps, max(total - steps, 0))
         repository.record_progress(session, self.job_id, steps, success_rate, eta)
 
     def _write(self) -> None:
@@ -190,10 +200,12 @@ class JobMonitor(TrainingHooks):
                 for at, path in self._saved:
                     repository.record_checkpoint(session, self.job_id, at, str(path))
                 self._record_progress(session)
+                if self._evaluating is not None:
+                    repository.record_evaluating(session, self.job_id, self._evaluating)
         except DBAPIError as error:
             log.warning("progress of job %d not written (tried again): %s", self.job_id, error)
             return
-        self._drop_after = self._latest = None
+        self._drop_after = self._latest = self._evaluating = None
         self._points.clear()
         self._saved.clear()
         self._last_write = self._last_beat = now

@@ -196,6 +196,23 @@ def record_progress(
     record_event(session, mission_id, "progress", {**payload, "eta_seconds": eta_seconds})
 
 
+def record_evaluating(session: Session, job_id: int, what: str) -> None:
+    """A running job's training has ended and it runs the evaluation ``what``
+    (``TrainingHooks.evaluating``): shown as its reason, its ETA cleared; refreshes the
+    heartbeat and appends a ``progress`` event."""
+    row = session.execute(
+        update(Job)
+        .where(Job.id == job_id)
+        .values(reason=what, eta_seconds=None, heartbeat_at=db_now(session))
+        .returning(Job.mission_id, Job.index, Job.repair_round)
+    ).one_or_none()
+    if row is None:
+        raise NotFoundError(f"no job {job_id}")
+    mission_id, index, repair_round = row
+    payload = {"index": index, "round": repair_round, "evaluating": what}
+    record_event(session, mission_id, "progress", payload)
+
+
 def finish_job(
     session: Session,
     job_id: int,

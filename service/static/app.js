@@ -127,6 +127,11 @@ function showError(message) {
 
 // ---------------------------------------------------------------- progress bars
 
+// A running job's estimated time left, or the evaluation it runs once its training ended.
+function timeLeft(job) {
+  return job.eta_seconds == null && job.reason ? job.reason : `ETA ${duration(job.eta_seconds)}`;
+}
+
 function progressBars(jobs) {
   if (!jobs || jobs.length === 0) return h("span", { class: "muted" }, "no sub-tasks yet");
   const grid = h("div", { class: "progress" });
@@ -147,7 +152,7 @@ function progressBars(jobs) {
       }, h("span", { style: `width: ${(100 * share).toFixed(1)}%` })),
       h("span", { class: "detail" },
         `${job.steps_done}/${job.budget} steps · ${job.status} · success ${pct(job.success_rate)}` +
-        (job.status === "running" ? ` · ETA ${duration(job.eta_seconds)}` : "")),
+        (job.status === "running" ? ` · ${timeLeft(job)}` : "")),
     );
   }
   return grid;
@@ -284,7 +289,7 @@ function jobsTable(jobs) {
   const rows = jobs.map((j) => {
     const f = j.final || {};
     return [j.index, badge(j.status), `${j.steps_done}/${j.budget}`, pct(j.success_rate),
-      j.status === "running" ? duration(j.eta_seconds) : "–", j.attempts,
+      j.status === "running" ? timeLeft(j) : "–", j.attempts,
       j.final ? f.episodes : "–", j.final ? pct(f.success_rate) : "–",
       j.final ? pct(f.collision_rate) : "–", j.final ? pct(f.timeout_rate) : "–",
       j.final ? pct(f.rejected_rate) : "–", j.final ? num(f.mean_steps_to_goal, 1) : "–",

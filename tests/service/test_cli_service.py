@@ -114,6 +114,25 @@ def test_the_progress_shows_each_repair_round_and_job_once(
     ]
 
 
+def test_the_progress_names_each_evaluation_a_job_runs_after_its_training(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    show = ProgressPrinter()
+    job = {"index": 0, "status": "running", "steps_done": 65000, "budget": 150000}
+    job = {**job, "success_rate": 0.88, "eta_seconds": 700.0, "reason": None}
+    show({"status": "training", "jobs": [job]})
+    for what in ("picking the kept policy: 1 of 4", "picking the kept policy: 2 of 4"):
+        show({"status": "training", "jobs": [{**job, "eta_seconds": None, "reason": what}]})
+        show({"status": "training", "jobs": [{**job, "eta_seconds": None, "reason": what}]})
+    lines = capsys.readouterr().out.splitlines()
+    assert lines == [
+        "status: training",
+        "  sub-task 0: running, 65000/150000 steps, success 88 %, ETA 700 s",
+        "  sub-task 0: running, 65000/150000 steps, success 88 %, picking the kept policy: 1 of 4",
+        "  sub-task 0: running, 65000/150000 steps, success 88 %, picking the kept policy: 2 of 4",
+    ]
+
+
 def test_submit_reports_problems_and_bad_keys(
     stack: tuple[Database, Settings], tmp_path: Path
 ) -> None:

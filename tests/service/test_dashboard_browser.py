@@ -214,6 +214,39 @@ def test_a_failed_mission_shows_its_reason(tmp_path: Path, page: Any) -> None:
 
 
 @pytest.mark.timeout(120)
+def test_a_job_whose_training_ended_shows_the_evaluation_it_runs(
+    tmp_path: Path, page: Any
+) -> None:
+    from service import repository
+    from service.db import Database
+    from service.models import MissionStatus
+
+    settings = quick_settings(tmp_path)
+    database = Database(settings.database_url)
+    what = "picking the kept policy: 2 of 4"
+
+    def train(mission_id: str) -> None:
+        with database.session() as session:
+            for status in (MissionStatus.planning, MissionStatus.training):
+                repository.set_status(session, mission_id, status)
+            new = repository.NewJob(index=0, budget=150_000, out_dir=str(tmp_path / "job"))
+            [job] = repository.create_jobs(session, mission_id, [new])
+            assert repository.claim_job(session, job.id, "worker") is not None
+            repository.record_progress(session, job.id, 65_000, 0.88, 700.0)
+            repository.record_evaluating(session, job.id, what)
+
+    try:
+        with ThreadServer(settings, train) as server:
+            page.goto(server.url + "/")
+            page.select_option("#example", EXAMPLE)
+            page.click("#submit")
+            page.locator("#training .detail").filter(has_text=what).wait_for()
+            assert "ETA" not in page.inner_text("#training .detail")
+    finally:
+        database.dispose()
+
+
+@pytest.mark.timeout(120)
 def test_api_key_field_sends_the_bearer_token(tmp_path: Path, page: Any) -> None:
     settings = quick_settings(tmp_path, api_keys=["s3cret"])
     with ThreadServer(settings, lambda _id: None) as server:

@@ -314,6 +314,27 @@ def test_a_job_handed_to_another_worker_stops_writing(settings: Settings) -> Non
         )
 
 
+def test_a_job_whose_training_ended_names_its_evaluation_instead_of_a_time_left(
+    settings: Settings,
+) -> None:
+    mission_id, db, job = claimed_job(settings, "me")
+    monitor = JobMonitor(db, mission_id, job.id, job.attempts, 0.01)
+    monitor.progress(100, 0.5, 200)
+    time.sleep(0.02)
+    monitor.progress(150, 0.5, 200)
+    running = load(settings, mission_id)[1][0]
+    assert running.eta_seconds is not None and running.reason is None
+    monitor.evaluating("picking the kept policy: 1 of 3")
+    monitor.progress(150, 0.5, 200)  # the job's last progress, after its evaluations
+    monitor.flush()
+    evaluating = load(settings, mission_id)[1][0]
+    assert evaluating.reason == "picking the kept policy: 1 of 3"
+    assert evaluating.eta_seconds is None and evaluating.steps_done == 150
+    with db.session() as session:
+        said = [e.payload.get("evaluating") for e in repository.events_after(session, mission_id)]
+    assert "picking the kept policy: 1 of 3" in said
+
+
 class BrokerDown(Recorder):
     def training(self, mission_id: str, indices: Sequence[int], repair_round: int = 0) -> None:
         raise ConnectionError("broker down")

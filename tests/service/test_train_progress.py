@@ -23,6 +23,21 @@ def test_a_sub_task_done_at_its_target_shows_how_long_it_ran() -> None:
     assert not column.render(bars.progress.tasks[0]).plain.startswith("done")
 
 
+def test_a_sub_task_whose_training_ended_shows_the_evaluation_it_runs() -> None:
+    bars = TrainProgress()
+    column = RemainingOrElapsed()
+    bars.show(0, 65_000, 0.88, 150_000, False)
+    bars.evaluating(0, "picking the kept policy: 2 of 4")
+    assert column.render(bars.progress.tasks[0]).plain == "picking the kept policy: 2 of 4"
+    bars.show(0, 65_000, 0.88, 150_000, False)  # the job's last progress, after its evaluations
+    assert column.render(bars.progress.tasks[0]).plain == "picking the kept policy: 2 of 4"
+    bars.show(0, 65_000, 0.88, 150_000, True)
+    assert column.render(bars.progress.tasks[0]).plain.startswith("done in ")
+    bars.show(0, 65_000, 0.88, 95_000, False)  # a repair round starts where it ended
+    assert column.render(bars.progress.tasks[0]).plain != "picking the kept policy: 2 of 4"
+    bars.evaluating(7, "final evaluation: 200 trials")  # no bar of its own: ignored
+
+
 def test_the_result_names_the_kept_policy_and_how_it_was_picked() -> None:
     result = TrainResult(
         subtask=0, seed=0, model_path="m.zip", steps=150_000, resumed_from=0, stopped="budget"

@@ -13,6 +13,7 @@ from planner.plan import MissionPlan
 from workers.callbacks import ResumableEvalCallback
 from workers.candidates import Candidate, CandidateStore
 from workers.evaluation import SubtaskEvaluation
+from workers.hooks import TrainingHooks
 from workers.jobs import SubtaskJob
 from workers.mission import MissionError, MissionSpec
 from workers.policy_pick import pick_policy
@@ -77,12 +78,21 @@ def test_the_pick_keeps_most_successes_and_stops_a_candidate_that_cannot_win(
     assert (kept, steps, [t[0] for t in trials]) == ("last", None, [5])  # the same policy once
 
 
+class SaysWhatItEvaluates(TrainingHooks):
+    def __init__(self) -> None:
+        self.said: list[str] = []
+
+    def evaluating(self, what: str) -> None:
+        self.said.append(what)
+
+
 def test_a_job_picks_its_kept_policy_on_seeds_of_their_own(
     mission: MissionSpec, plan: MissionPlan, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Periodic evaluations make 0.5, 0.9, 0.8, 0.6: the policies of steps 200 and 300 are the
     candidates. On the selection seed step 300's makes most successes and is kept although
-    step 200's periodic rate was higher; the last policy's trial stops once it cannot win."""
+    step 200's periodic rate was higher; the last policy's trial stops once it cannot win.
+    The job says which evaluation it runs once its training has ended."""
     import workers.training as training_module
 
     periodic = [0.5, 0.9, 0.8, 0.6]
@@ -113,7 +123,8 @@ def test_a_job_picks_its_kept_policy_on_seeds_of_their_own(
         return next(picked) if seed == selection_seed else evaluation(0.0, episodes)
 
     monkeypatch.setattr(training_module, "evaluate_subtask", scripted)
-    result = train_subtask(mission, plan, job, tmp_path)
+    hooks = SaysWhatItEvaluates()
+    result = train_subtask(mission, plan, job, tmp_path, hooks)
     assert result.stopped == "budget" and result.policy_steps == 300
     assert result.selection == [(200, 0.6, 20), (300, 0.9, 20), (400, 0.5, 4)]
     assert [needed for seed, needed in asked if seed == selection_seed] == [0, 13, 19]
@@ -124,6 +135,12 @@ def test_a_job_picks_its_kept_policy_on_seeds_of_their_own(
         "policy_300.zip",
     ]
     assert "pick" in result.parts
+    assert hooks.said == [
+        "picking the kept policy: 1 of 3",
+        "picking the kept policy: 2 of 3",
+        "picking the kept policy: 3 of 3",
+        "final evaluation: 20 trials",
+    ]
     assert not (tmp_path / "best_model.zip").exists()  # the pick's store holds the best
 
 
