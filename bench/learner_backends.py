@@ -1,6 +1,6 @@
 """The learner's rate under each ``training.backend`` (issue 17, item 3): SAC of stable-baselines3
-against SAC of SBX (JAX), each with one env per learner or several (``--envs``), side by side in
-one run.
+as jobs run it (lean, ``workers.lean_learner``) and in SB3's own loop, against SAC of SBX (JAX),
+each with one env per learner or several (``--envs``), side by side in one run.
 
 Both learn on the NavEnv of a mission's sub-task 0 with its training options and the same
 hyperparameters (the mission's, over the defaults: network, batch, ``train_freq``), built as a
@@ -36,7 +36,8 @@ from bench.train_speed import mission_path  # noqa: E402
 from workers.mission import load_mission  # noqa: E402
 from workers.run import stored_or_new_plan  # noqa: E402
 
-BACKENDS = ("sb3", "sbx")
+LEARNERS = {"sb3, SB3's loop": ("sb3", False), "sb3": ("sb3", True), "sbx": ("sbx", False)}
+"""Row name: ``training.backend`` and whether the model is made lean as a job makes it."""
 WARM_UP = 1_000
 
 
@@ -48,6 +49,7 @@ def rates(name: str, steps: int, repeats: int, env_counts: list[int]) -> str:
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     from workers.agents import algorithm_class, hyperparameters
+    from workers.lean_learner import make_lean
     from workers.training import subtask_env
     from workers.training_spec import TrainingSpec
 
@@ -55,10 +57,11 @@ def rates(name: str, steps: int, repeats: int, env_counts: list[int]) -> str:
     out = Path(os.environ.get("TMPDIR", "/tmp")) / "ltlnav-bench-backends" / name
     plan = stored_or_new_plan(mission, out)
     torch.set_num_threads(mission.training.torch_threads)
-    variants = [(backend, n) for backend in BACKENDS for n in env_counts]
+    variants = [(learner, n) for learner in LEARNERS for n in env_counts]
     best = {v: (0.0, 0.0) for v in variants}
     for _ in range(repeats):
-        for backend, n in variants:
+        for learner, n in variants:
+            backend, lean = LEARNERS[learner]
             fields = {**mission.training.model_dump(), "backend": backend, "n_envs": n}
             training = TrainingSpec.model_validate(fields)
             env = DummyVecEnv([partial(subtask_env, mission, plan, training, 0)] * n)
@@ -66,22 +69,24 @@ def rates(name: str, steps: int, repeats: int, env_counts: list[int]) -> str:
             assert shape is not None
             params = hyperparameters(training, int(np.prod(shape)))
             model = algorithm_class(training)("MlpPolicy", env, seed=0, device="cpu", **params)
+            if lean:
+                make_lean(model)
             model.learn(WARM_UP)
             wall, cpu = time.perf_counter(), time.process_time()
             model.learn(steps, reset_num_timesteps=False)
             wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
-            old_wall, old_cpu = best[backend, n]
-            best[backend, n] = (max(old_wall, steps / wall), max(old_cpu, steps / cpu))
+            old_wall, old_cpu = best[learner, n]
+            best[learner, n] = (max(old_wall, steps / wall), max(old_cpu, steps / cpu))
             env.close()
     alone = env_step_seconds(subtask_env(mission, plan, mission.training, 0), steps)
     rows = []
-    first = best["sb3", env_counts[0]][0]
-    for backend, n in variants:
-        per_wall, per_cpu = best[backend, n]
-        learner = 1e3 * (1 / per_cpu - alone)
+    first = best["sb3, SB3's loop", env_counts[0]][0]
+    for learner, n in variants:
+        per_wall, per_cpu = best[learner, n]
+        update_ms = 1e3 * (1 / per_cpu - alone)
         rows.append(
-            f"| {name} | {backend} | {n} | {per_wall:.0f} | {per_cpu:.0f} | {1e3 / per_cpu:.2f} "
-            f"| {1e3 * alone:.2f} | {learner:.2f} | {per_wall / first:.2f} |"
+            f"| {name} | {learner} | {n} | {per_wall:.0f} | {per_cpu:.0f} | {1e3 / per_cpu:.2f} "
+            f"| {1e3 * alone:.2f} | {update_ms:.2f} | {per_wall / first:.2f} |"
         )
     return "\n".join(rows)
 
@@ -101,7 +106,7 @@ def main(argv: list[str] | None = None) -> None:
         f"SAC on each mission's sub-task 0, {args.steps} timed env steps, best of {args.repeats}, "
         f"gradient steps per env step and network as the mission trains\n\n"
         "| mission | backend | envs | steps / wall s | steps / CPU s | ms per step | env alone, ms "
-        f"| learner, ms | wall rate vs sb3 with {args.envs[0]} |\n"
+        f"| learner, ms | wall rate vs SB3's loop with {args.envs[0]} |\n"
         "|---|---|---|---|---|---|---|---|---|"
     )
     for name in args.missions:

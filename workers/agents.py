@@ -23,6 +23,7 @@ from workers.callbacks import ResumableEvalCallback
 from workers.checkpoints import checkpoints
 from workers.hyperparameters import OFF_POLICY_TRAIN_FREQ
 from workers.jax_cpu import start_jax_cpu
+from workers.lean_learner import make_lean
 from workers.residual import zero_output_layer
 from workers.training_spec import TrainingSpec
 
@@ -107,7 +108,19 @@ def load_agent(
     """The agent and the step it resumes from: the newest readable checkpoint in ``folder``
     with its replay buffer; else, with ``warm`` (a finished job's folder), its policy and
     newest replay buffer at step 0; else a fresh agent (``residual``: its action output starts
-    at zero, ``workers.residual``)."""
+    at zero, ``workers.residual``). An SB3 agent is lean (``workers.lean_learner``)."""
+    model, steps = _agent(training, env, folder, seed, warm, residual)
+    return (make_lean(model) if training.backend == "sb3" else model), steps
+
+
+def _agent(
+    training: TrainingSpec,
+    env: DummyVecEnv,
+    folder: Path,
+    seed: int,
+    warm: Path | None,
+    residual: bool,
+) -> tuple[BaseAlgorithm, int]:
     cls = algorithm_class(training)
     found = checkpoints(folder)
     if not found and warm is not None:
