@@ -214,9 +214,7 @@ def test_a_failed_mission_shows_its_reason(tmp_path: Path, page: Any) -> None:
 
 
 @pytest.mark.timeout(120)
-def test_a_job_whose_training_ended_shows_the_evaluation_it_runs(
-    tmp_path: Path, page: Any
-) -> None:
+def test_a_job_whose_training_ended_shows_the_evaluation_it_runs(tmp_path: Path, page: Any) -> None:
     from service import repository
     from service.db import Database
     from service.models import MissionStatus
