@@ -16,6 +16,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -185,63 +186,66 @@ def test_missions_list_pages(tmp_path: Path, page: Any) -> None:
         pager.filter(has_text="1–50 of 51").wait_for()
 
 
-@pytest.mark.timeout(120)
-def test_a_failed_mission_shows_its_reason(tmp_path: Path, page: Any) -> None:
-    from service import repository
+@contextmanager
+def example_submitted(tmp_path: Path, page: Any, on_submit: Any) -> Iterator[None]:
+    """The example submitted from the dashboard to the real API, whose ``enqueue`` calls
+    ``on_submit(session, mission_id)`` in a database session of its own (no worker)."""
     from service.db import Database
-    from service.models import MissionStatus
 
     settings = quick_settings(tmp_path)
     database = Database(settings.database_url)
-    reason = "infeasible: region 'b' cannot be reached"
 
-    def fail(mission_id: str) -> None:
+    def enqueue(mission_id: str) -> None:
         with database.session() as session:
-            repository.set_status(session, mission_id, MissionStatus.failed, reason=reason)
+            on_submit(session, mission_id)
 
     try:
-        with ThreadServer(settings, fail) as server:
+        with ThreadServer(settings, enqueue) as server:
             page.goto(server.url + "/")
             page.select_option("#example", EXAMPLE)
             page.click("#submit")
-            page.wait_for_selector("#mission-status .badge.failed")
-            assert page.inner_text("#mission-reason") == reason
-            assert page.is_disabled("#cancel") and page.is_disabled("#download")
-            page.click("text=← all missions")
-            page.locator("#missions .reason").filter(has_text=reason).wait_for()
+            yield
     finally:
         database.dispose()
+
+
+@pytest.mark.timeout(120)
+def test_a_failed_mission_shows_its_reason(tmp_path: Path, page: Any) -> None:
+    from service import repository
+    from service.models import MissionStatus
+
+    reason = "infeasible: region 'b' cannot be reached"
+
+    def fail(session: Any, mission_id: str) -> None:
+        repository.set_status(session, mission_id, MissionStatus.failed, reason=reason)
+
+    with example_submitted(tmp_path, page, fail):
+        page.wait_for_selector("#mission-status .badge.failed")
+        assert page.inner_text("#mission-reason") == reason
+        assert page.is_disabled("#cancel") and page.is_disabled("#download")
+        page.click("text=← all missions")
+        page.locator("#missions .reason").filter(has_text=reason).wait_for()
 
 
 @pytest.mark.timeout(120)
 def test_a_job_whose_training_ended_shows_the_evaluation_it_runs(tmp_path: Path, page: Any) -> None:
     from service import repository
-    from service.db import Database
     from service.models import MissionStatus
 
-    settings = quick_settings(tmp_path)
-    database = Database(settings.database_url)
     what = "picking the kept policy: 2 of 4"
 
-    def train(mission_id: str) -> None:
-        with database.session() as session:
-            for status in (MissionStatus.planning, MissionStatus.training):
-                repository.set_status(session, mission_id, status)
-            new = repository.NewJob(index=0, budget=150_000, out_dir=str(tmp_path / "job"))
-            [job] = repository.create_jobs(session, mission_id, [new])
-            assert repository.claim_job(session, job.id, "worker") is not None
-            repository.record_progress(session, job.id, 65_000, 0.88, 700.0)
-            repository.record_evaluating(session, job.id, what)
+    def train(session: Any, mission_id: str) -> None:
+        for status in (MissionStatus.planning, MissionStatus.training):
+            repository.set_status(session, mission_id, status)
+        new = repository.NewJob(index=0, budget=150_000, out_dir=str(tmp_path / "job"))
+        [job] = repository.create_jobs(session, mission_id, [new])
+        assert repository.claim_job(session, job.id, "worker") is not None
+        repository.record_progress(session, job.id, 65_000, 0.88, 700.0)
+        repository.record_evaluating(session, job.id, what)
 
-    try:
-        with ThreadServer(settings, train) as server:
-            page.goto(server.url + "/")
-            page.select_option("#example", EXAMPLE)
-            page.click("#submit")
-            page.locator("#training .detail").filter(has_text=what).wait_for()
-            assert "ETA" not in page.inner_text("#training .detail")
-    finally:
-        database.dispose()
+    with example_submitted(tmp_path, page, train):
+        page.locator("#training .detail").filter(has_text=what).wait_for()
+        assert "ETA" not in page.inner_text("#training .detail")
 
 
 @pytest.mark.timeout(120)
