@@ -309,11 +309,13 @@ def test_api_restart_under_fifty_pollers(cluster: Cluster) -> None:
     failure outside the gap, and every poller is served again after the restart."""
     row, polls = scenarios.api_restart(cluster, replace(TEST, poll_seconds=20))
     assert polls.back_at is not None, (row, cluster.tail())
-    assert not [s for _, _, s in polls.seen if s >= 500], row
-    failures = [t for _, t, s in polls.seen if s != 200]
-    # only in the gap (a refusal on its way as the API came back may land just after it)
-    assert failures and all(polls.kill_at <= t <= polls.back_at + 1.0 for t in failures), row
-    served_after = {k for k, t, s in polls.seen if s == 200 and t >= polls.back_at}
+    assert not [s for *_, s in polls.seen if s >= 500], row
+    failures = [(k, sent, t, s) for k, sent, t, s in polls.seen if s != 200]
+    # only requests of the gap fail, however late their failure comes back (a request sent as
+    # the API came back may still be refused; one queued before it served can time out)
+    outside = [f for f in failures if not (polls.kill_at <= f[2] and f[1] <= polls.back_at + 1.0)]
+    assert failures and not outside, (row, polls.back_at, outside[:10])
+    served_after = {k for k, _, t, s in polls.seen if s == 200 and t >= polls.back_at}
     assert served_after == set(range(TEST.pollers)), row
 
 

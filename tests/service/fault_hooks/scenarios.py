@@ -537,8 +537,9 @@ class Polls:
     """When the killed API process was gone."""
     back_at: float | None = None
     """When the first 200 to a request sent after the kill came."""
-    seen: list[tuple[int, float, int]] = field(default_factory=list)
-    """``(poller, time, status)``; status 0: no answer (connection refused, reset)."""
+    seen: list[tuple[int, float, float, int]] = field(default_factory=list)
+    """``(poller, sent, answered, status)``, times from the start of polling; status 0: no
+    answer (connection refused, reset, timed out)."""
 
 
 def api_restart(cluster: Cluster, scale: Scale) -> tuple[FaultRow, Polls]:
@@ -577,7 +578,7 @@ def api_restart(cluster: Cluster, scale: Scale) -> tuple[FaultRow, Polls]:
             except httpx.HTTPError:
                 status = 0
             now = time.monotonic() - t0  # when the answer (or the failure) came
-            polls.seen.append((k, now, status))
+            polls.seen.append((k, sent, now, status))
             if status == 200 and polls.killed_at and sent > polls.killed_at:
                 served_again = True
                 if polls.back_at is None:
@@ -602,6 +603,6 @@ def api_restart(cluster: Cluster, scale: Scale) -> tuple[FaultRow, Polls]:
     row.status = "served" if polls.back_at is not None else "not back"
     if polls.back_at is not None:
         row.recover_seconds = polls.back_at - polls.kill_at
-    bad = [s for _, _, s in polls.seen if s != 200]
+    bad = [s for _, _, _, s in polls.seen if s != 200]
     row.notes.append(f"{len(polls.seen)} polls, {len(bad)} not 200 ({sorted(set(bad))})")
     return row, polls
