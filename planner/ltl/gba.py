@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 from planner.errors import AutomatonTooLargeError
 from planner.ltl.guard import Cube, covers
-from planner.ltl.vwaa import Vwaa
+from planner.ltl.vwaa import Move, Vwaa
 
 BaState = tuple[frozenset[int], int]
 
@@ -51,6 +51,23 @@ def add_cube(cubes: list[Cube], cube: Cube) -> None:
     cubes.append(cube)
 
 
+Mask = tuple[int, int]
+"""A cube as bit sets of its positive and its negative atoms (the construction's inner loop)."""
+
+
+def add_mask(masks: list[Mask], pos: int, neg: int) -> None:
+    """:func:`add_cube` on masks: a cube implies another when its bit sets contain the other's."""
+    implied_by_new = False
+    for other_pos, other_neg in masks:
+        if other_pos & pos == other_pos and other_neg & neg == other_neg:
+            return
+        if pos & other_pos == pos and neg & other_neg == neg:
+            implied_by_new = True
+    if implied_by_new:
+        masks[:] = [(p, n) for p, n in masks if not (pos & p == pos and neg & n == neg)]
+    masks.append((pos, neg))
+
+
 class Degeneralizer:
     """Explores the degeneralized Büchi automaton of a VWAA from its initial states."""
 
@@ -61,6 +78,10 @@ class Degeneralizer:
         outgrow this many states (None: no budget)."""
         self.r = len(vwaa.finals)
         self.acc_index = {f: i + 1 for i, f in enumerate(vwaa.finals)}
+        self._atom_bits: dict[str, int] = {}
+        self._move_masks: dict[int, list[tuple[Move, Mask]]] = {}
+        self._cube_of: dict[Mask, Cube] = {}
+        self._state_names: dict[int, str] = {}
         self.one_level_per_set = True
         """After ``build``: whether every GBA state ``e`` was reached at one level only, so
         the degeneralization added no copies (another order of the acceptance sets reaches
@@ -76,34 +97,66 @@ class Degeneralizer:
             return None if index is None or index <= start else index - start - 1
 
         ordered = sorted(e, key=lambda q: (rank(q) is not None, rank(q) or 0, q))
-        partial: dict[tuple[frozenset[int], int], list[Cube]] = {
-            (frozenset(), none_missed): [Cube.TRUE]
+        partial: dict[tuple[frozenset[int], int], list[Mask]] = {
+            (frozenset(), none_missed): [(0, 0)]
         }
         for q in ordered:
             q_rank = rank(q)
-            grown: dict[tuple[frozenset[int], int], list[Cube]] = {}
-            for (targets, missed), cubes in partial.items():
-                for move in self.vwaa.moves[q]:
+            grown: dict[tuple[frozenset[int], int], list[Mask]] = {}
+            for (targets, missed), masks in partial.items():
+                for move, (move_pos, move_neg) in self._moves(q):
                     new_missed = missed
                     if q_rank is not None and not move.marked and q_rank < missed:
                         new_missed = q_rank
                     key = (targets | move.targets, new_missed)
-                    for cube in cubes:
-                        joined = cube.conjoin(move.cube)
-                        if joined is not None:
-                            add_cube(grown.setdefault(key, []), joined)
+                    for pos, neg in masks:
+                        pos |= move_pos
+                        neg |= move_neg
+                        if not pos & neg:
+                            add_mask(grown.setdefault(key, []), pos, neg)
             partial = grown
             self._check_budget(len(partial))
-        out: dict[BaState, list[Cube]] = {}
-        for (targets, missed), cubes in partial.items():
+        out: dict[BaState, list[Mask]] = {}
+        for (targets, missed), masks in partial.items():
             for f in targets - e:
                 f_rank = rank(f)
                 if f_rank is not None and f_rank < missed:
                     missed = f_rank
             bucket = out.setdefault((targets, start + missed), [])
-            for cube in cubes:
-                add_cube(bucket, cube)
-        return self._prune_dominated(out)
+            for pos, neg in masks:
+                add_mask(bucket, pos, neg)
+        return self._prune_dominated({key: self._cubes(masks) for key, masks in out.items()})
+
+    def _moves(self, q: int) -> list[tuple[Move, Mask]]:
+        moves = self._move_masks.get(q)
+        if moves is None:
+            moves = self._move_masks[q] = [
+                (move, self._mask(move.cube)) for move in self.vwaa.moves[q]
+            ]
+        return moves
+
+    def _mask(self, cube: Cube) -> Mask:
+        bits = self._atom_bits
+        pos = neg = 0
+        for atom in cube.pos:
+            pos |= bits.setdefault(atom, 1 << len(bits))
+        for atom in cube.neg:
+            neg |= bits.setdefault(atom, 1 << len(bits))
+        return pos, neg
+
+    def _cubes(self, masks: list[Mask]) -> list[Cube]:
+        out = []
+        for mask in masks:
+            cube = self._cube_of.get(mask)
+            if cube is None:
+                names = {bit: atom for atom, bit in self._atom_bits.items()}
+                pos, neg = mask
+                cube = self._cube_of[mask] = Cube(
+                    frozenset(a for b, a in names.items() if b & pos),
+                    frozenset(a for b, a in names.items() if b & neg),
+                )
+            out.append(cube)
+        return out
 
     def _prune_dominated(self, out: dict[BaState, list[Cube]]) -> dict[BaState, list[Cube]]:
         """Drop cubes whose letters also lead to a state that directly simulates the target.
@@ -181,5 +234,8 @@ class Degeneralizer:
 
     def _name(self, s: BaState) -> str:
         e, level = s
-        body = " & ".join(sorted(self.vwaa.name(q) for q in e)) or "true"
+        names = self._state_names
+        for q in e - names.keys():
+            names[q] = self.vwaa.name(q)
+        body = " & ".join(sorted(names[q] for q in e)) or "true"
         return f"{{{body}}}/{level}"

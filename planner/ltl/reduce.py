@@ -183,9 +183,9 @@ def prune_little_brothers(ba: RawBuchi, sim: list[set[int]]) -> RawBuchi:
         for target, cubes in out.items():
             better = [
                 c
-                for t, cs in out.items()
-                if t != target and t in sim[target] and target not in sim[t]
-                for c in cs
+                for t in sim[target] & out.keys()
+                if t != target and target not in sim[t]
+                for c in out[t]
             ]
             remaining = [c for c in cubes if not covers(better, c)]
             if remaining:
