@@ -21,8 +21,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from planner.errors import AutomatonTooLargeError
-from planner.ltl.guard import Cube, covers
-from planner.ltl.vwaa import Move, Vwaa
+from planner.ltl.guard import Cube
+from planner.ltl.masks import Mask, add_mask, masks_cover
+from planner.ltl.vwaa import Vwaa
 
 BaState = tuple[frozenset[int], int]
 
@@ -51,23 +52,6 @@ def add_cube(cubes: list[Cube], cube: Cube) -> None:
     cubes.append(cube)
 
 
-Mask = tuple[int, int]
-"""A cube as bit sets of its positive and its negative atoms (the construction's inner loop)."""
-
-
-def add_mask(masks: list[Mask], pos: int, neg: int) -> None:
-    """:func:`add_cube` on masks: a cube implies another when its bit sets contain the other's."""
-    implied_by_new = False
-    for other_pos, other_neg in masks:
-        if other_pos & pos == other_pos and other_neg & neg == other_neg:
-            return
-        if pos & other_pos == pos and neg & other_neg == neg:
-            implied_by_new = True
-    if implied_by_new:
-        masks[:] = [(p, n) for p, n in masks if not (pos & p == pos and neg & n == neg)]
-    masks.append((pos, neg))
-
-
 class Degeneralizer:
     """Explores the degeneralized Büchi automaton of a VWAA from its initial states."""
 
@@ -79,9 +63,11 @@ class Degeneralizer:
         self.r = len(vwaa.finals)
         self.acc_index = {f: i + 1 for i, f in enumerate(vwaa.finals)}
         self._atom_bits: dict[str, int] = {}
-        self._move_masks: dict[int, list[tuple[Move, Mask]]] = {}
+        self._move_bits: dict[int, list[tuple[bool, int, int, int]]] = {}
+        self._states_from_bits: dict[int, frozenset[int]] = {}
         self._cube_of: dict[Mask, Cube] = {}
         self._state_names: dict[int, str] = {}
+        self._ranks_from: dict[int, dict[int, int]] = {}
         self.one_level_per_set = True
         """After ``build``: whether every GBA state ``e`` was reached at one level only, so
         the degeneralization added no copies (another order of the acceptance sets reaches
@@ -92,48 +78,72 @@ class Degeneralizer:
         start = level if level < self.r else 0
         none_missed = self.r - start
 
-        def rank(q: int) -> int | None:
-            index = self.acc_index.get(q)
-            return None if index is None or index <= start else index - start - 1
-
-        ordered = sorted(e, key=lambda q: (rank(q) is not None, rank(q) or 0, q))
-        partial: dict[tuple[frozenset[int], int], list[Mask]] = {
-            (frozenset(), none_missed): [(0, 0)]
-        }
+        ranks = self._ranks(start)
+        ordered = sorted(e, key=lambda q: (q in ranks, ranks.get(q, 0), q))
+        partial: dict[tuple[int, int], list[Mask]] = {(0, none_missed): [(0, 0)]}
         for q in ordered:
-            q_rank = rank(q)
-            grown: dict[tuple[frozenset[int], int], list[Mask]] = {}
-            for (targets, missed), masks in partial.items():
-                for move, (move_pos, move_neg) in self._moves(q):
+            q_rank = ranks.get(q)
+            moves = self._moves(q)
+            grown: dict[tuple[int, int], list[Mask]] = {}
+            for (target_bits, missed), masks in partial.items():
+                for marked, move_targets, move_pos, move_neg in moves:
                     new_missed = missed
-                    if q_rank is not None and not move.marked and q_rank < missed:
+                    if q_rank is not None and not marked and q_rank < missed:
                         new_missed = q_rank
-                    key = (targets | move.targets, new_missed)
+                    key = (target_bits | move_targets, new_missed)
                     for pos, neg in masks:
                         pos |= move_pos
                         neg |= move_neg
                         if not pos & neg:
-                            add_mask(grown.setdefault(key, []), pos, neg)
+                            bucket = grown.get(key)
+                            if bucket is None:
+                                grown[key] = [(pos, neg)]
+                            else:
+                                add_mask(bucket, pos, neg)
             partial = grown
             self._check_budget(len(partial))
         out: dict[BaState, list[Mask]] = {}
-        for (targets, missed), masks in partial.items():
-            for f in targets - e:
-                f_rank = rank(f)
+        for (target_bits, missed), masks in partial.items():
+            states = self._states_of(target_bits)
+            for f in states - e:
+                f_rank = ranks.get(f)
                 if f_rank is not None and f_rank < missed:
                     missed = f_rank
-            bucket = out.setdefault((targets, start + missed), [])
+            target = (states, start + missed)
+            if target not in out:
+                out[target] = masks
+                continue
             for pos, neg in masks:
-                add_mask(bucket, pos, neg)
-        return self._prune_dominated({key: self._cubes(masks) for key, masks in out.items()})
+                add_mask(out[target], pos, neg)
+        pruned = self._prune_dominated(out)
+        return {key: self._cubes(masks) for key, masks in pruned.items()}
 
-    def _moves(self, q: int) -> list[tuple[Move, Mask]]:
-        moves = self._move_masks.get(q)
+    def _ranks(self, start: int) -> dict[int, int]:
+        """Each final state's rank: how many acceptance sets after ``start``'s its set comes."""
+        ranks = self._ranks_from.get(start)
+        if ranks is None:
+            ranks = self._ranks_from[start] = {
+                f: index - start - 1 for f, index in self.acc_index.items() if index > start
+            }
+        return ranks
+
+    def _moves(self, q: int) -> list[tuple[bool, int, int, int]]:
+        """``q``'s moves as (marked, targets as bits, the cube's masks)."""
+        moves = self._move_bits.get(q)
         if moves is None:
-            moves = self._move_masks[q] = [
-                (move, self._mask(move.cube)) for move in self.vwaa.moves[q]
+            moves = self._move_bits[q] = [
+                (move.marked, sum(1 << t for t in move.targets), *self._mask(move.cube))
+                for move in self.vwaa.moves[q]
             ]
         return moves
+
+    def _states_of(self, bits: int) -> frozenset[int]:
+        states = self._states_from_bits.get(bits)
+        if states is None:
+            states = self._states_from_bits[bits] = frozenset(
+                q for q in range(bits.bit_length()) if bits >> q & 1
+            )
+        return states
 
     def _mask(self, cube: Cube) -> Mask:
         bits = self._atom_bits
@@ -158,7 +168,7 @@ class Degeneralizer:
             out.append(cube)
         return out
 
-    def _prune_dominated(self, out: dict[BaState, list[Cube]]) -> dict[BaState, list[Cube]]:
+    def _prune_dominated(self, out: dict[BaState, list[Mask]]) -> dict[BaState, list[Mask]]:
         """Drop cubes whose letters also lead to a state that directly simulates the target.
 
         ``(e', j')`` simulates ``(e, j)`` when ``e'`` drops only obligations from which no
@@ -172,18 +182,18 @@ class Degeneralizer:
         groups: dict[frozenset[int], list[BaState]] = {}
         for key in out:
             groups.setdefault(key[0] - free, []).append(key)
-        pruned: dict[BaState, list[Cube]] = {}
-        for key, cubes in out.items():
+        pruned: dict[BaState, list[Mask]] = {}
+        for key, masks in out.items():
             targets, level = key
             better = [
-                c
+                m
                 for other, other_level in groups[targets - free]
                 if (other, other_level) != key
                 and other <= targets
                 and (level <= other_level < self.r or level == other_level == self.r)
-                for c in out[(other, other_level)]
+                for m in out[(other, other_level)]
             ]
-            kept = [c for c in cubes if not covers(better, c)] if better else cubes
+            kept = [m for m in masks if not masks_cover(better, *m)] if better else masks
             if kept:
                 pruned[key] = kept
         return pruned

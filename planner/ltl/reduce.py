@@ -38,7 +38,10 @@ def reduce_buchi(ba: RawBuchi) -> RawBuchi:
     Automata too large for the simulation budget (rare: deeply nested formulas with many
     until operators) get only the cheap merge of identical states.
     """
-    ba = trim(merge_identical(trim(ba)))
+    ba = trim(ba)
+    merged = merge_identical(ba)
+    if merged is not ba:
+        ba = trim(merged)
     while True:
         size = (ba.num_states, _num_cubes(ba))
         if not _within_budget(ba, cubes=size[1]):
@@ -289,17 +292,32 @@ def merge_identical(ba: RawBuchi) -> RawBuchi:
         signatures: dict[object, int] = {}
         new_block = []
         for p in range(n):
-            out: dict[int, list[Cube]] = {}
-            for target, cubes in ba.edges.get(p, {}).items():
-                bucket = out.setdefault(block[target], [])
-                for cube in cubes:
-                    add_cube(bucket, cube)
+            out = _guards_by_block(ba.edges.get(p, {}), block)
             sig = (block[p], frozenset((b, frozenset(cs)) for b, cs in out.items()))
             new_block.append(signatures.setdefault(sig, len(signatures)))
-        if len(signatures) == len(set(block)):
-            break
+        stable = len(signatures) == len(set(block))
         block = new_block
+        if stable or len(signatures) == n:  # no block splits further, or every one is a state
+            break
     members: dict[int, set[int]] = {}
     for p in range(n):
         members.setdefault(block[p], set()).add(p)
     return quotient(ba, [members[block[p]] for p in range(n)])
+
+
+def _guards_by_block(out: dict[int, list[Cube]], block: list[int]) -> dict[int, list[Cube]]:
+    """The guards of ``out`` joined by the targets' blocks (a lone target's list is shared)."""
+    joined: dict[int, list[Cube]] = {}
+    own: set[int] = set()
+    for target, cubes in out.items():
+        b = block[target]
+        bucket = joined.get(b)
+        if bucket is None:
+            joined[b] = cubes
+            continue
+        if b not in own:
+            bucket = joined[b] = list(bucket)
+            own.add(b)
+        for cube in cubes:
+            add_cube(bucket, cube)
+    return joined

@@ -24,7 +24,7 @@ from planner.errors import AutomatonTooLargeError
 from planner.ltl.automaton import Buchi, Edge
 from planner.ltl.formula import Formula, atoms, parse, to_nnf
 from planner.ltl.gba import Degeneralizer, RawBuchi
-from planner.ltl.guard import Guard
+from planner.ltl.guard import Cube, Guard
 from planner.ltl.reduce import reduce_buchi, simulation_affordable
 from planner.ltl.rewrite import simplify
 from planner.ltl.vwaa import build_vwaa, other_orders
@@ -72,8 +72,17 @@ def to_buchi(raw: RawBuchi, atom_names: tuple[str, ...]) -> Buchi:
     for q in range(raw.num_states):
         base = "init" if q == raw.initial else f"S{q}"
         names.append(f"accept_{base}" if q in raw.accepting else base)
+    guards: dict[frozenset[Cube], Guard] = {}
+
+    def guard(cubes: list[Cube]) -> Guard:
+        key = frozenset(cubes)
+        found = guards.get(key)
+        if found is None:
+            found = guards[key] = Guard(key)
+        return found
+
     edges = tuple(
-        Edge(source, Guard.of(cubes), target)
+        Edge(source, guard(cubes), target)
         for source in sorted(raw.edges)
         for target, cubes in sorted(raw.edges[source].items())
         if cubes
