@@ -49,13 +49,18 @@ class Buchi:
             raise ValueError(f"initial state {self.initial} is not one of the {n} states")
         if any(not 0 <= q < n for q in self.accepting):
             raise ValueError("an accepting state id is out of range")
+        known = set(self.atoms)
+        checked: set[int] = set()  # guards are shared between edges: each is checked once
         for e in self.edges:
             if not (0 <= e.source < n and 0 <= e.target < n):
                 raise ValueError(f"edge {e.source}->{e.target} leaves the {n} states")
+            if id(e.guard) in checked:
+                continue
+            checked.add(id(e.guard))
             if e.guard.is_false:
                 raise ValueError(f"edge {e.source}->{e.target} has a false guard")
-            if not e.guard.atoms <= set(self.atoms):
-                unknown = ", ".join(sorted(e.guard.atoms - set(self.atoms)))
+            if not e.guard.atoms <= known:
+                unknown = ", ".join(sorted(e.guard.atoms - known))
                 raise ValueError(f"edge {e.source}->{e.target} uses {unknown}, not in atoms")
 
     @property

@@ -63,7 +63,8 @@ class Degeneralizer:
         self.r = len(vwaa.finals)
         self.acc_index = {f: i + 1 for i, f in enumerate(vwaa.finals)}
         self._atom_bits: dict[str, int] = {}
-        self._move_bits: dict[int, list[tuple[bool, int, int, int]]] = {}
+        self._move_bits: dict[int, list[tuple[bool, int, int, int, bool]]] = {}
+        self._giving_way: set[tuple[int, int]] | None = None
         self._states_from_bits: dict[int, frozenset[int]] = {}
         self._cube_of: dict[Mask, Cube] = {}
         self._state_names: dict[int, str] = {}
@@ -86,7 +87,9 @@ class Degeneralizer:
             moves = self._moves(q)
             grown: dict[tuple[int, int], list[Mask]] = {}
             for (target_bits, missed), masks in partial.items():
-                for marked, move_targets, move_pos, move_neg in moves:
+                for marked, move_targets, move_pos, move_neg, gives_way in moves:
+                    if gives_way and (q_rank is None or missed < q_rank):
+                        continue  # staying misses nothing more: it simulates leaving
                     new_missed = missed
                     if q_rank is not None and not marked and q_rank < missed:
                         new_missed = q_rank
@@ -127,15 +130,52 @@ class Degeneralizer:
             }
         return ranks
 
-    def _moves(self, q: int) -> list[tuple[bool, int, int, int]]:
-        """``q``'s moves as (marked, targets as bits, the cube's masks)."""
+    def _moves(self, q: int) -> list[tuple[bool, int, int, int, bool]]:
+        """``q``'s moves as (marked, targets as bits, the cube's masks, whether it gives way
+        to a state that ``q`` simulates; see :meth:`_gives_way`)."""
         moves = self._move_bits.get(q)
         if moves is None:
+            giving_way = self._gives_way()
             moves = self._move_bits[q] = [
-                (move.marked, sum(1 << t for t in move.targets), *self._mask(move.cube))
-                for move in self.vwaa.moves[q]
+                (
+                    move.marked,
+                    sum(1 << t for t in move.targets),
+                    *self._mask(move.cube),
+                    (q, i) in giving_way,
+                )
+                for i, move in enumerate(self.vwaa.moves[q])
             ]
         return moves
+
+    def _gives_way(self) -> set[tuple[int, int]]:
+        """The moves ``(x, i)`` of final states ``x`` that go to one state ``y`` whose every
+        move ``x`` also has, leaving ``x`` (the same targets, a weaker cube), when ``x`` may
+        also stay unmarked on any letter (``G F a | F G b`` going to ``G b``).
+
+        Staying then simulates going: ``x`` in place of ``y`` answers every move of ``y``
+        with its own and meets its acceptance set doing so. Where staying unmarked misses no
+        acceptance set earlier than one the transition misses anyway, it reaches the same
+        level and the transition that goes is a little brother, not built.
+        """
+        if self._giving_way is None:
+            moves = self.vwaa.moves
+            finals = set(self.vwaa.finals)
+            self._giving_way = set()
+            for x in self.vwaa.finals:
+                waits = any(
+                    not m.marked and m.targets == {x} and m.cube == Cube.TRUE for m in moves[x]
+                )
+                leaving = [m for m in moves[x] if x not in m.targets]
+                for i, move in enumerate(moves[x]):
+                    if not waits or x in move.targets or len(move.targets) != 1:
+                        continue
+                    (y,) = move.targets
+                    if y not in finals and all(
+                        any(m.targets == n.targets and m.cube.implies(n.cube) for n in leaving)
+                        for m in moves[y]
+                    ):
+                        self._giving_way.add((x, i))
+        return self._giving_way
 
     def _states_of(self, bits: int) -> frozenset[int]:
         states = self._states_from_bits.get(bits)
@@ -179,15 +219,20 @@ class Degeneralizer:
         # ``other <= targets`` and ``targets - other <= free`` imply that the two agree outside
         # ``free``: only states of the same group can simulate each other (for a conjunction
         # of k eventualities, 2^k successors in 2^k groups instead of 4^k pairs).
+        group_of = {key: key[0] - free for key in out}
         groups: dict[frozenset[int], list[BaState]] = {}
-        for key in out:
-            groups.setdefault(key[0] - free, []).append(key)
+        for key, name in group_of.items():
+            groups.setdefault(name, []).append(key)
         pruned: dict[BaState, list[Mask]] = {}
         for key, masks in out.items():
+            members = groups[group_of[key]]
+            if len(members) == 1:
+                pruned[key] = masks
+                continue
             targets, level = key
             better = [
                 m
-                for other, other_level in groups[targets - free]
+                for other, other_level in members
                 if (other, other_level) != key
                 and other <= targets
                 and (level <= other_level < self.r or level == other_level == self.r)

@@ -14,6 +14,8 @@ and finally states that are unreachable or cannot reach an accepting cycle go.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from planner.ltl.automaton import nodes_on_cycles
@@ -62,15 +64,23 @@ def _num_cubes(ba: RawBuchi) -> int:
 
 
 def _atoms(ba: RawBuchi) -> list[str]:
-    return sorted(
-        {a for out in ba.edges.values() for cs in out.values() for c in cs for a in c.atoms}
-    )
+    # Cubes are shared between transitions: each distinct one is read once.
+    cubes = {id(c): c for out in ba.edges.values() for cs in out.values() for c in cs}
+    return sorted({a for c in cubes.values() for a in c.atoms})
 
 
 def simulation_affordable(ba: RawBuchi) -> bool:
     """Whether :func:`reduce_buchi` computes the simulation of ``ba`` (else it only merges
     identical states)."""
     return _within_budget(ba, cubes=_num_cubes(ba))
+
+
+def affordable_states(atoms: int) -> int:
+    """An upper bound on the states of an automaton over ``atoms`` atoms whose simulation
+    :func:`reduce_buchi` computes (with at least one cube per state)."""
+    if atoms <= LETTER_ATOMS:
+        return math.isqrt(LETTER_SIMULATION_BUDGET // letter_words(atoms))
+    return math.isqrt(SIMULATION_BUDGET)
 
 
 def _within_budget(ba: RawBuchi, cubes: int) -> bool:

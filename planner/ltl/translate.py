@@ -12,9 +12,14 @@ made copies of a GBA state at several levels: of the 61 formulas of
 12, never on one without such copies (``<>g1 && ... && <>g10``, 1024 states, is one: half
 its translation time was the second order). Nor are they tried when the first automaton is
 too large for the simulation: the orders differ mostly in the copies the simulation merges,
-and another order's automaton would go unreduced too (``gh_r(7)`` and ``gh_r(8)``: 2507 and
-7265 states in both orders, half the translation time the second). Guards stay DNF cubes
-throughout; only the simulation, up to 8 atoms, reasons on letter sets.
+and another order's automaton would go unreduced too (seven ``(F p_i | G p_i+1) & G F p_i``
+over 8 atoms: 2764 states, and no fewer in the other order). A formula with recurrences that
+may give up (``G F a | F G b``: :mod:`planner.ltl.vwaa`) is translated with them split too
+when that automaton has at most half the states the simulation affords (its simulation then
+takes at most a quarter of the budget): split, ``gh_r(4)`` to ``gh_r(6)`` reduce to 33, 60 and
+107 states (joined: 39, 88, 195); joined, ``gh_r(7)`` has 447 states before reduction (split:
+896). Guards stay DNF cubes throughout; only the simulation, up to 8 atoms, reasons on letter
+sets.
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ from planner.ltl.automaton import Buchi, Edge
 from planner.ltl.formula import Formula, atoms, parse, to_nnf
 from planner.ltl.gba import Degeneralizer, RawBuchi
 from planner.ltl.guard import Cube, Guard
-from planner.ltl.reduce import reduce_buchi, simulation_affordable
+from planner.ltl.reduce import affordable_states, reduce_buchi, simulation_affordable
 from planner.ltl.rewrite import simplify
 from planner.ltl.vwaa import build_vwaa, other_orders
 
@@ -46,12 +51,23 @@ def translate(formula: Formula | str, max_states: int | None = None) -> Buchi:
     vwaa = build_vwaa(nnf)
     first = Degeneralizer(vwaa, max_states)
     best = reduce_buchi(first.build())
-    if not first.one_level_per_set and simulation_affordable(best):
+    affordable = simulation_affordable(best)
+    if not first.one_level_per_set and affordable:
         for other in other_orders(vwaa):
             try:
                 candidate = reduce_buchi(Degeneralizer(other, max_states).build())
             except AutomatonTooLargeError:
                 continue  # this order outgrew the budget: keep the others
+            if raw_size(candidate) < raw_size(best):
+                best = candidate
+    if vwaa.gives_up and affordable:
+        budget = affordable_states(len(atoms(nnf))) // 2
+        try:
+            split = Degeneralizer(build_vwaa(nnf, give_up=False), min(budget, max_states or budget))
+            candidate = reduce_buchi(split.build())
+        except AutomatonTooLargeError:
+            pass  # split, the automaton is the larger, and slow to reduce
+        else:
             if raw_size(candidate) < raw_size(best):
                 best = candidate
     return to_buchi(best, tuple(sorted(atoms(f))))
@@ -73,12 +89,19 @@ def to_buchi(raw: RawBuchi, atom_names: tuple[str, ...]) -> Buchi:
         base = "init" if q == raw.initial else f"S{q}"
         names.append(f"accept_{base}" if q in raw.accepting else base)
     guards: dict[frozenset[Cube], Guard] = {}
+    single: dict[int, Guard] = {}  # most transitions have one cube, shared between them
 
     def guard(cubes: list[Cube]) -> Guard:
+        if len(cubes) == 1:
+            found = single.get(id(cubes[0]))
+            if found is not None:
+                return found
         key = frozenset(cubes)
         found = guards.get(key)
         if found is None:
             found = guards[key] = Guard(key)
+        if len(cubes) == 1:
+            single[id(cubes[0])] = found
         return found
 
     edges = tuple(

@@ -15,6 +15,12 @@ must not be stayed in forever along a branch unless infinitely many of the trans
 takes there are marked. ``a U b`` marks the transitions that leave it. ``G F a`` is its
 own final state with ``δ(G F a) = marked(Δ(a) ⊗ {G F a}) ∪ {(true, {G F a})}``; without
 this, a conjunction of k ``G F`` formulas yields 2^k intermediate automaton states.
+
+A disjunction ``G F a | e`` with ``e`` a pure eventuality (``e`` holds on a word once it
+holds on a suffix: ``F b``, ``F G b``, ``G F b``, ...) is one final state too, a recurrence
+that may give up: it stays as ``G F a`` does, or leaves for ``e``'s obligations, at once or
+later (``e = F b``: for ``b``'s). Splitting it instead makes two branches that both wait, and
+``(G F p1 | F G p2) & ... & (G F pn | F G pn+1)`` has 3^n automaton states instead of 2^n.
 """
 
 from __future__ import annotations
@@ -66,14 +72,18 @@ class Vwaa:
     initial: list[frozenset[int]] = field(default_factory=list)
     finals: list[int] = field(default_factory=list)
     final_free: frozenset[int] = frozenset()
+    gives_up: bool = False
+    """Whether a state is a recurrence that may give up (``G F a | e``)."""
 
     def name(self, q: int) -> str:
         """A readable name of state ``q`` (its formula)."""
         return to_text(self.formulas[q])
 
 
-def build_vwaa(nnf: Formula) -> Vwaa:
+def build_vwaa(nnf: Formula, give_up: bool = True) -> Vwaa:
     """The VWAA of ``nnf`` (negation normal form, ``W`` allowed), with every reachable state.
+
+    With ``give_up`` false, ``G F a | e`` is split into its disjuncts as any disjunction.
 
     ``finals`` lists the final states in order of creation, outermost subformulas first,
     the ``G F`` states last; that order is the order of the acceptance sets after
@@ -81,7 +91,7 @@ def build_vwaa(nnf: Formula) -> Vwaa:
     is pending (``G F a & F G b``: 3 states, not 4). ``final_free`` holds the states from
     which no final state can be reached.
     """
-    builder = _Builder()
+    builder = _Builder(give_up)
     vwaa = builder.vwaa
     vwaa.initial = builder.bar(_unweak(nnf))
     todo = sorted({q for e in vwaa.initial for q in e})
@@ -95,7 +105,7 @@ def build_vwaa(nnf: Formula) -> Vwaa:
         for move in vwaa.moves[q]:
             todo.extend(sorted(move.targets - done))
     vwaa.finals = sorted(q for q in done if _is_final(vwaa.formulas[q]))
-    vwaa.finals.sort(key=lambda q: _is_gf(vwaa.formulas[q]))
+    vwaa.finals.sort(key=lambda q: _is_recurrence(vwaa.formulas[q]))
     free = {q for q in done if q not in vwaa.finals}
     shrinking = True
     while shrinking:
@@ -103,6 +113,7 @@ def build_vwaa(nnf: Formula) -> Vwaa:
         free -= bad
         shrinking = bool(bad)
     vwaa.final_free = frozenset(free)
+    vwaa.gives_up = any(isinstance(vwaa.formulas[q], Or) for q in done)
     return vwaa
 
 
@@ -131,10 +142,10 @@ def reordered_finals(vwaa: Vwaa) -> Vwaa | None:
     last). Neither order is always better: across Dwyer's patterns each wins on some
     (``G (a -> F (b & X F c))``: 5 states innermost first, 7 outermost first).
     """
-    plain = [q for q in vwaa.finals if not _is_gf(vwaa.formulas[q])]
+    plain = [q for q in vwaa.finals if not _is_recurrence(vwaa.formulas[q])]
     if len(plain) < 2:
         return None
-    recurring = [q for q in vwaa.finals if _is_gf(vwaa.formulas[q])]
+    recurring = [q for q in vwaa.finals if _is_recurrence(vwaa.formulas[q])]
     return replace(vwaa, finals=[*reversed(plain), *recurring])
 
 
@@ -146,10 +157,10 @@ def other_orders(vwaa: Vwaa) -> Iterator[Vwaa]:
     if reversed_order is None:
         return
     yield reversed_order
-    plain = [q for q in vwaa.finals if not _is_gf(vwaa.formulas[q])]
+    plain = [q for q in vwaa.finals if not _is_recurrence(vwaa.formulas[q])]
     if len(plain) > ALL_ORDERS_UP_TO:
         return
-    recurring = [q for q in vwaa.finals if _is_gf(vwaa.formulas[q])]
+    recurring = [q for q in vwaa.finals if _is_recurrence(vwaa.formulas[q])]
     tried = [vwaa.finals, reversed_order.finals]
     for order in permutations(plain):
         finals = [*order, *recurring]
@@ -161,8 +172,55 @@ def _is_gf(f: Formula) -> bool:
     return isinstance(f, Globally) and isinstance(f.arg, Eventually)
 
 
+def _is_recurrence(f: Formula) -> bool:
+    """``G F a``, or ``G F a | e`` with ``e`` a pure eventuality: a final state whose
+    obligation recurs (its acceptance set comes after the ``F``/``U`` obligations')."""
+    return _is_gf(f) or _giving_up(f) is not None
+
+
+def _giving_up(f: Formula) -> tuple[Formula, list[Formula]] | None:
+    """``(a, [e1, ..., ek])`` for ``f = G F a | e1 | ... | ek`` (in any order; the first
+    ``G F`` disjunct is the recurrence) with every ``ei`` a pure eventuality, else None."""
+    if not isinstance(f, Or):
+        return None
+    disjuncts = _disjuncts(f)
+    for i, d in enumerate(disjuncts):
+        if _is_gf(d):
+            rest = disjuncts[:i] + disjuncts[i + 1 :]
+            if all(_is_eventuality(e) for e in rest):
+                return _recurring(d), rest
+            return None
+    return None
+
+
+def _recurring(f: Formula) -> Formula:
+    """``a`` of ``G F a``."""
+    assert isinstance(f, Globally) and isinstance(f.arg, Eventually)
+    return f.arg.arg
+
+
+def _disjuncts(f: Formula) -> list[Formula]:
+    if isinstance(f, Or):
+        return _disjuncts(f.left) + _disjuncts(f.right)
+    return [f]
+
+
+def _is_eventuality(f: Formula) -> bool:
+    """Whether ``f`` is a pure eventuality (syntactically): ``f`` holds on a word whenever it
+    holds on one of its suffixes, so ``F f = f``."""
+    if isinstance(f, Const | Eventually):
+        return True
+    if isinstance(f, Globally | Next):
+        return _is_eventuality(f.arg)
+    if isinstance(f, And | Or):
+        return _is_eventuality(f.left) and _is_eventuality(f.right)
+    if isinstance(f, Until):
+        return _is_eventuality(f.right)
+    return False
+
+
 def _is_final(f: Formula) -> bool:
-    return isinstance(f, Until | Eventually) or _is_gf(f)
+    return isinstance(f, Until | Eventually) or _is_recurrence(f)
 
 
 def _minimal(terms: list[Term]) -> list[Term]:
@@ -191,9 +249,14 @@ def _product(xs: list[Term], ys: list[Term]) -> list[Term]:
 
 
 class _Builder:
-    def __init__(self) -> None:
+    def __init__(self, give_up: bool) -> None:
         self.vwaa = Vwaa()
         self.cache: dict[Formula, list[Term]] = {}
+        self.give_up = give_up
+
+    def gives_up(self, f: Formula) -> bool:
+        """Whether ``f`` is made one state that may give up its recurrence."""
+        return self.give_up and _giving_up(f) is not None
 
     def state(self, f: Formula) -> int:
         if f not in self.vwaa.index:
@@ -205,7 +268,7 @@ class _Builder:
         """The DNF of ``f`` over states: a list of alternative state sets."""
         if isinstance(f, Const):
             return [frozenset()] if f.value else []
-        if isinstance(f, Or):
+        if isinstance(f, Or) and not self.gives_up(f):
             sets = self.bar(f.left) + self.bar(f.right)
         elif isinstance(f, And):
             sets = [a | b for a in self.bar(f.left) for b in self.bar(f.right)]
@@ -232,6 +295,8 @@ class _Builder:
         if isinstance(f, And):
             return _product(self.delta(f.left), self.delta(f.right))
         if isinstance(f, Or):
+            if self.gives_up(f):
+                return _minimal([(true, frozenset((self.state(f),))), *self.leaving(f)])
             return _minimal(self.delta(f.left) + self.delta(f.right))
         if isinstance(f, Next):
             return [(true, e) for e in self.bar(f.arg)]
@@ -247,14 +312,27 @@ class _Builder:
         assert isinstance(f, Globally), f"unexpected formula {f!r}"
         return _product(self.delta(f.arg), loop)
 
+    def leaving(self, f: Formula) -> list[Term]:
+        """The moves by which ``G F a | e1 | ... | ek`` gives up its recurrence now: those
+        of some ``ei``, of ``b`` for ``ei = F b`` (the waiting is the recurrence's own)."""
+        split = _giving_up(f)
+        assert split is not None
+        terms: list[Term] = []
+        for e in split[1]:
+            terms += self.delta(e.arg if isinstance(e, Eventually) else e)
+        return _minimal(terms)
+
     def state_moves(self, q: int) -> tuple[Move, ...]:
         """``δ(q)`` with the marks that discharge a final state's obligation."""
         f = self.vwaa.formulas[q]
-        if _is_gf(f):
-            assert isinstance(f, Globally) and isinstance(f.arg, Eventually)
+        if _is_recurrence(f):
+            split = _giving_up(f)
+            recurring = split[0] if split is not None else _recurring(f)
             loop = frozenset((q,))
-            marked = [Move(c, t | loop, True) for c, t in self.delta(f.arg.arg)]
+            marked = [Move(c, t | loop, True) for c, t in self.delta(recurring)]
             moves = [*marked, Move(Cube.TRUE, loop, False)]
+            if split is not None:
+                moves += [Move(c, t, q not in t) for c, t in self.leaving(f)]
             return tuple(m for m in moves if not _move_dominated(m, moves))
         return tuple(Move(c, t, q not in t) for c, t in self.delta(f))
 
