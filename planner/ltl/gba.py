@@ -52,6 +52,12 @@ def add_cube(cubes: list[Cube], cube: Cube) -> None:
     cubes.append(cube)
 
 
+def _negated_literal(cube: Cube) -> Cube:
+    """The cube of the negation of a one-literal cube."""
+    ((name, positive),) = [(a, True) for a in cube.pos] + [(a, False) for a in cube.neg]
+    return Cube.literal(name, not positive)
+
+
 class Degeneralizer:
     """Explores the degeneralized Büchi automaton of a VWAA from its initial states."""
 
@@ -64,7 +70,7 @@ class Degeneralizer:
         self.acc_index = {f: i + 1 for i, f in enumerate(vwaa.finals)}
         self._atom_bits: dict[str, int] = {}
         self._move_bits: dict[int, list[tuple[bool, int, int, int, bool]]] = {}
-        self._giving_way: set[tuple[int, int]] | None = None
+        self._giving_way: dict[tuple[int, int], Cube] | None = None
         self._states_from_bits: dict[int, frozenset[int]] = {}
         self._cube_of: dict[Mask, Cube] = {}
         self._state_names: dict[int, str] = {}
@@ -140,32 +146,40 @@ class Degeneralizer:
                 (
                     move.marked,
                     sum(1 << t for t in move.targets),
-                    *self._mask(move.cube),
+                    *self._mask(giving_way.get((q, i), move.cube)),
                     (q, i) in giving_way,
                 )
                 for i, move in enumerate(self.vwaa.moves[q])
             ]
         return moves
 
-    def _gives_way(self) -> set[tuple[int, int]]:
+    def _gives_way(self) -> dict[tuple[int, int], Cube]:
         """The moves ``(x, i)`` of final states ``x`` that go to one state ``y`` whose every
         move ``x`` also has, leaving ``x`` (the same targets, a weaker cube), when ``x`` may
-        also stay unmarked on any letter (``G F a | F G b`` going to ``G b``).
+        also stay unmarked on any letter (``G F a | F G b`` going to ``G b``), each with the
+        cube it is built with.
 
         Staying then simulates going: ``x`` in place of ``y`` answers every move of ``y``
         with its own and meets its acceptance set doing so. Where staying unmarked misses no
         acceptance set earlier than one the transition misses anyway, it reaches the same
-        level and the transition that goes is a little brother, not built.
+        level and the transition that goes is a little brother, not built. Where ``x`` also
+        stays marked on a literal (``a`` of ``G F a``), staying is as good on the letters of
+        that literal, and the move is built on the others only (``b & !a``).
         """
         if self._giving_way is None:
             moves = self.vwaa.moves
             finals = set(self.vwaa.finals)
-            self._giving_way = set()
+            self._giving_way = {}
             for x in self.vwaa.finals:
                 waits = any(
                     not m.marked and m.targets == {x} and m.cube == Cube.TRUE for m in moves[x]
                 )
                 leaving = [m for m in moves[x] if x not in m.targets]
+                recurring = [
+                    _negated_literal(m.cube)
+                    for m in moves[x]
+                    if m.marked and m.targets == {x} and len(m.cube.pos) + len(m.cube.neg) == 1
+                ]
                 for i, move in enumerate(moves[x]):
                     if not waits or x in move.targets or len(move.targets) != 1:
                         continue
@@ -174,7 +188,10 @@ class Degeneralizer:
                         any(m.targets == n.targets and m.cube.implies(n.cube) for n in leaving)
                         for m in moves[y]
                     ):
-                        self._giving_way.add((x, i))
+                        cube = move.cube
+                        for other_letters in recurring:
+                            cube = cube.conjoin(other_letters) or cube
+                        self._giving_way[(x, i)] = cube
         return self._giving_way
 
     def _states_of(self, bits: int) -> frozenset[int]:

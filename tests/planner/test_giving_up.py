@@ -154,9 +154,10 @@ def test_a_proposition_is_not_an_eventuality() -> None:
 
 def test_a_recurrence_does_not_give_way_where_staying_is_no_better() -> None:
     """``gh_r(9)``: the moves that leave for ``G p`` are built only where staying would miss
-    the recurrence's acceptance set first (76861 cubes before any reduction; 259503 with
-    every move), and ``gh_r(7)`` and ``gh_r(8)`` still agree with the semantics."""
+    the recurrence's acceptance set first, and only on letters where it could not stay
+    marked (23109 cubes before any reduction; 76861 on every letter, 259503 with every
+    move), and ``gh_r(7)`` and ``gh_r(8)`` still agree with the semantics."""
     vwaa = build_vwaa(simplify(to_nnf(parse(gh_r(9)))))
-    assert raw_size(Degeneralizer(vwaa).build())[1] < 100_000
+    assert raw_size(Degeneralizer(vwaa).build())[1] < 30_000
     for n in (7, 8):
         _agrees(parse(gh_r(n)), random.Random(n), words=300)
