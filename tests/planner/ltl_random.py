@@ -20,7 +20,11 @@ from planner.ltl.formula import (
     Release,
     Until,
     WeakUntil,
+    atoms,
+    to_text,
 )
+from planner.ltl.semantics import holds_on_lasso
+from planner.ltl.translate import translate
 
 PROPS = ("a", "b", "c")
 Lasso = tuple[list[frozenset[str]], list[frozenset[str]]]
@@ -71,3 +75,14 @@ def random_lasso(rng: random.Random, props: tuple[str, ...] = PROPS, longest: in
     prefix = [random_letter(rng, props) for _ in range(rng.randint(1, longest))]
     cycle = [random_letter(rng, props) for _ in range(rng.randint(1, longest))]
     return prefix, cycle
+
+
+def check_semantics(f: Formula, rng: random.Random, words: int = 40) -> None:
+    """``translate(f)`` accepts exactly the random lassos on which ``f`` holds (over ``f``'s
+    atoms), by the direct semantics :func:`holds_on_lasso`, which builds no automaton."""
+    nba = translate(f)
+    props = tuple(sorted(atoms(f))) or ("a",)
+    for _ in range(words):
+        prefix, cycle = random_lasso(rng, props, longest=5)
+        expected = holds_on_lasso(f, prefix, cycle)
+        assert nba.accepts_lasso(prefix, cycle) == expected, (to_text(f), prefix, cycle)

@@ -17,18 +17,15 @@ from planner.ltl.formula import (
     Or,
     Prop,
     Until,
-    atoms,
     parse,
     to_nnf,
-    to_text,
 )
 from planner.ltl.gba import Degeneralizer
 from planner.ltl.reduce import reduce_buchi
 from planner.ltl.rewrite import simplify
-from planner.ltl.semantics import holds_on_lasso
 from planner.ltl.translate import raw_size, translate
 from planner.ltl.vwaa import build_vwaa
-from tests.planner.ltl_random import random_formula, random_lasso
+from tests.planner.ltl_random import check_semantics, random_formula
 
 
 def _small(rng: random.Random) -> Formula:
@@ -69,22 +66,13 @@ def _giving_up(rng: random.Random) -> Formula:
     return f
 
 
-def _agrees(f: Formula, rng: random.Random, words: int) -> None:
-    nba = translate(f)
-    props = tuple(sorted(atoms(f))) or ("a",)
-    for _ in range(words):
-        prefix, cycle = random_lasso(rng, props, longest=5)
-        expected = holds_on_lasso(f, prefix, cycle)
-        assert nba.accepts_lasso(prefix, cycle) == expected, (to_text(f), prefix, cycle)
-
-
 def test_random_recurrences_that_give_up_agree_with_semantics() -> None:
     rng = random.Random(23)
     made_states = 0
     for _ in range(150):
         f = _giving_up(rng)
         made_states += build_vwaa(simplify(to_nnf(f))).gives_up
-        _agrees(f, rng, words=40)
+        check_semantics(f, rng, words=40)
     assert made_states >= 60  # the rewriting leaves most of them for the new state
 
 
@@ -102,7 +90,7 @@ def test_random_recurrences_that_give_up_agree_with_semantics() -> None:
 def test_a_disjunct_that_is_no_eventuality_keeps_the_split(text: str) -> None:
     f = parse(text)
     assert not build_vwaa(simplify(to_nnf(f))).gives_up
-    _agrees(f, random.Random(5), words=200)
+    check_semantics(f, random.Random(5), words=200)
 
 
 def test_a_late_eventuality_does_not_pass_for_an_early_one() -> None:
@@ -163,4 +151,4 @@ def test_a_recurrence_does_not_give_way_where_staying_is_no_better() -> None:
     vwaa = build_vwaa(simplify(to_nnf(parse(gh_r(9)))))
     assert raw_size(Degeneralizer(vwaa).build())[1] < 30_000
     for n in (7, 8):
-        _agrees(parse(gh_r(n)), random.Random(n), words=300)
+        check_semantics(parse(gh_r(n)), random.Random(n), words=300)

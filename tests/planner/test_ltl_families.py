@@ -20,10 +20,8 @@ from planner.ltl.formula import (
     Formula,
     Globally,
     Or,
-    atoms,
     parse,
     to_nnf,
-    to_text,
 )
 from planner.ltl.gba import Degeneralizer
 from planner.ltl.reduce import reduce_buchi, simulation_affordable
@@ -31,7 +29,7 @@ from planner.ltl.rewrite import simplify
 from planner.ltl.semantics import holds_on_lasso
 from planner.ltl.translate import raw_size, translate
 from planner.ltl.vwaa import build_vwaa, other_orders
-from tests.planner.ltl_random import random_formula, random_lasso
+from tests.planner.ltl_random import check_semantics, random_formula
 
 L = frozenset
 
@@ -53,19 +51,10 @@ LTL2BA_GH_R_STATES = (5, 13, 36, 102, 292, 842, 2444)
 PATTERN_CASES = [(name, i) for name, texts in PATTERNS.items() for i in range(1, len(texts) + 1)]
 
 
-def _check_semantics(f: Formula, rng: random.Random, words: int = 40) -> None:
-    nba = translate(f)
-    props = tuple(sorted(atoms(f))) or ("a",)
-    for _ in range(words):
-        prefix, cycle = random_lasso(rng, props, longest=5)
-        expected = holds_on_lasso(f, prefix, cycle)
-        assert nba.accepts_lasso(prefix, cycle) == expected, (to_text(f), prefix, cycle)
-
-
 @pytest.mark.parametrize(("name", "index"), PATTERN_CASES)
 def test_patterns_agree_with_semantics_and_ltl2ba_size(name: str, index: int) -> None:
     f = parse(PATTERNS[name][index - 1])
-    _check_semantics(f, random.Random(index))
+    check_semantics(f, random.Random(index))
     assert translate(f).num_states <= LTL2BA_STATES[name][index - 1]
 
 
@@ -77,7 +66,7 @@ def test_patterns_agree_with_semantics_and_ltl2ba_size(name: str, index: int) ->
     + [("rv-counter", k) for k in range(1, 3)],
 )
 def test_parametric_families_agree_with_semantics(family: str, k: int) -> None:
-    _check_semantics(parse(FAMILIES[family](k)), random.Random(k), words=60)
+    check_semantics(parse(FAMILIES[family](k)), random.Random(k), words=60)
 
 
 @pytest.mark.parametrize("n", [4, 5, 6, 7])
@@ -87,7 +76,7 @@ def test_gh_r_is_smaller_than_ltl2ba_and_agrees_with_semantics(n: int) -> None:
     # 7 atoms), and recurrences that give up (gh_r(7): 447 states before the simulation).
     f = parse(FAMILIES["gh-r"](n))
     assert translate(f).num_states <= LTL2BA_GH_R_STATES[n - 1] // 2
-    _check_semantics(f, random.Random(n), words=60)
+    check_semantics(f, random.Random(n), words=60)
 
 
 def _counter_word(n: int) -> list[frozenset[str]]:
@@ -139,7 +128,7 @@ def test_a_chain_without_the_recurrence_stays_correct() -> None:
     assert nba.accepts_lasso([], [L()])
     assert not nba.accepts_lasso([L({"g1"})], [L()])
     assert nba.accepts_lasso([L({"g1"}), L({"g2"}), L({"g3"})], [L()])
-    _check_semantics(f, random.Random(3), words=200)
+    check_semantics(f, random.Random(3), words=200)
 
 
 def _random_response(rng: random.Random) -> Formula:
@@ -158,7 +147,7 @@ def test_conjunctions_of_responses_and_recurrences_agree_with_semantics() -> Non
         f = _random_response(rng)
         for _ in range(rng.randint(1, 3)):
             f = And(f, _random_response(rng))
-        _check_semantics(f, rng, words=30)
+        check_semantics(f, rng, words=30)
 
 
 def _robot_tasks(goals: int) -> list[str]:
