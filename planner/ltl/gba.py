@@ -26,6 +26,8 @@ from planner.ltl.masks import Mask, add_mask, masks_cover
 from planner.ltl.vwaa import Vwaa
 
 BaState = tuple[frozenset[int], int]
+MoveBits = list[tuple[bool, int, int, int, bool]]
+"""A VWAA state's moves: (marked, targets as bits, the cube's masks, whether it gives way)."""
 
 
 @dataclass
@@ -69,10 +71,13 @@ class Degeneralizer:
         self.r = len(vwaa.finals)
         self.acc_index = {f: i + 1 for i, f in enumerate(vwaa.finals)}
         self._atom_bits: dict[str, int] = {}
-        self._move_bits: dict[int, list[tuple[bool, int, int, int, bool]]] = {}
+        self._move_bits: dict[int, MoveBits] = {}
+        self._ordered: dict[tuple[int, int], list[tuple[int | None, MoveBits]]] = {}
+        self._final_bits = sum(1 << f for f in vwaa.finals)
+        self._free_bits = sum(1 << q for q in vwaa.final_free)
         self._giving_way: dict[tuple[int, int], Cube] | None = None
         self._states_from_bits: dict[int, frozenset[int]] = {}
-        self._cube_of: dict[Mask, Cube] = {}
+        self._cube_of = _CubeOf(self._atom_bits)
         self._state_names: dict[int, str] = {}
         self._ranks_from: dict[int, dict[int, int]] = {}
         self.one_level_per_set = True
@@ -82,50 +87,64 @@ class Degeneralizer:
 
     def successors(self, e: frozenset[int], level: int) -> dict[BaState, list[Cube]]:
         """The outgoing transitions of Büchi state ``(e, level)``, by target state."""
-        start = level if level < self.r else 0
-        none_missed = self.r - start
+        out = self._successor_masks(sum(1 << q for q in e), level)
+        return {(self._states_of(bits), j): self._cubes(masks) for (bits, j), masks in out.items()}
 
+    def _successor_masks(self, e: int, level: int) -> dict[tuple[int, int], list[Mask]]:
+        """:meth:`successors` with state sets and cubes as bit masks."""
+        start = level if level < self.r else 0
         ranks = self._ranks(start)
-        ordered = sorted(e, key=lambda q: (q in ranks, ranks.get(q, 0), q))
-        partial: dict[tuple[int, int], list[Mask]] = {(0, none_missed): [(0, 0)]}
-        for q in ordered:
-            q_rank = ranks.get(q)
-            moves = self._moves(q)
+        partial: dict[tuple[int, int], list[Mask]] = {(0, self.r - start): [(0, 0)]}
+        for q_rank, moves in self._ordered_moves(e, start):
             grown: dict[tuple[int, int], list[Mask]] = {}
+            bucket_of = grown.get
             for (target_bits, missed), masks in partial.items():
                 for marked, move_targets, move_pos, move_neg, gives_way in moves:
                     if gives_way and (q_rank is None or missed < q_rank):
                         continue  # staying misses nothing more: it simulates leaving
-                    new_missed = missed
                     if q_rank is not None and not marked and q_rank < missed:
-                        new_missed = q_rank
-                    key = (target_bits | move_targets, new_missed)
+                        key = (target_bits | move_targets, q_rank)
+                    else:
+                        key = (target_bits | move_targets, missed)
                     for pos, neg in masks:
                         pos |= move_pos
                         neg |= move_neg
                         if not pos & neg:
-                            bucket = grown.get(key)
+                            bucket = bucket_of(key)
                             if bucket is None:
                                 grown[key] = [(pos, neg)]
                             else:
                                 add_mask(bucket, pos, neg)
             partial = grown
-            self._check_budget(len(partial))
-        out: dict[BaState, list[Mask]] = {}
+            if self.max_states is not None:
+                self._check_budget(len(partial))
+        out: dict[tuple[int, int], list[Mask]] = {}
         for (target_bits, missed), masks in partial.items():
-            states = self._states_of(target_bits)
-            for f in states - e:
+            created = target_bits & ~e & self._final_bits
+            while created:
+                f = (created & -created).bit_length() - 1
+                created &= created - 1
                 f_rank = ranks.get(f)
                 if f_rank is not None and f_rank < missed:
                     missed = f_rank
-            target = (states, start + missed)
-            if target not in out:
+            target = (target_bits, start + missed)
+            bucket = out.get(target)
+            if bucket is None:
                 out[target] = masks
                 continue
             for pos, neg in masks:
-                add_mask(out[target], pos, neg)
-        pruned = self._prune_dominated(out)
-        return {key: self._cubes(masks) for key, masks in pruned.items()}
+                add_mask(bucket, pos, neg)
+        return self._prune_dominated(out)
+
+    def _ordered_moves(self, e: int, start: int) -> list[tuple[int | None, MoveBits]]:
+        """The states of ``e`` in the order of their acceptance sets after ``start``'s (the
+        others first), each as its rank and its moves."""
+        ordered = self._ordered.get((e, start))
+        if ordered is None:
+            ranks = self._ranks(start)
+            states = sorted(self._states_of(e), key=lambda q: (q in ranks, ranks.get(q, 0), q))
+            ordered = self._ordered[(e, start)] = [(ranks.get(q), self._moves(q)) for q in states]
+        return ordered
 
     def _ranks(self, start: int) -> dict[int, int]:
         """Each final state's rank: how many acceptance sets after ``start``'s its set comes."""
@@ -136,7 +155,7 @@ class Degeneralizer:
             }
         return ranks
 
-    def _moves(self, q: int) -> list[tuple[bool, int, int, int, bool]]:
+    def _moves(self, q: int) -> MoveBits:
         """``q``'s moves as (marked, targets as bits, the cube's masks, whether it gives way
         to a state that ``q`` simulates; see :meth:`_gives_way`)."""
         moves = self._move_bits.get(q)
@@ -212,48 +231,39 @@ class Degeneralizer:
         return pos, neg
 
     def _cubes(self, masks: list[Mask]) -> list[Cube]:
-        out = []
-        for mask in masks:
-            cube = self._cube_of.get(mask)
-            if cube is None:
-                names = {bit: atom for atom, bit in self._atom_bits.items()}
-                pos, neg = mask
-                cube = self._cube_of[mask] = Cube(
-                    frozenset(a for b, a in names.items() if b & pos),
-                    frozenset(a for b, a in names.items() if b & neg),
-                )
-            out.append(cube)
-        return out
+        cube_of = self._cube_of
+        return [cube_of[mask] for mask in masks]
 
-    def _prune_dominated(self, out: dict[BaState, list[Mask]]) -> dict[BaState, list[Mask]]:
+    def _prune_dominated(
+        self, out: dict[tuple[int, int], list[Mask]]
+    ) -> dict[tuple[int, int], list[Mask]]:
         """Drop cubes whose letters also lead to a state that directly simulates the target.
 
         ``(e', j')`` simulates ``(e, j)`` when ``e'`` drops only obligations from which no
         final state is reachable (so no acceptance set can get worse) and ``j <= j' < r``
         or ``j = j' = r``. Removing such "little brothers" preserves the language.
         """
-        free = self.vwaa.final_free
+        kept_bits = ~self._free_bits
         # ``other <= targets`` and ``targets - other <= free`` imply that the two agree outside
         # ``free``: only states of the same group can simulate each other (for a conjunction
         # of k eventualities, 2^k successors in 2^k groups instead of 4^k pairs).
-        group_of = {key: key[0] - free for key in out}
-        groups: dict[frozenset[int], list[BaState]] = {}
-        for key, name in group_of.items():
-            groups.setdefault(name, []).append(key)
-        pruned: dict[BaState, list[Mask]] = {}
+        groups: dict[int, list[tuple[int, int]]] = {}
+        for key in out:
+            groups.setdefault(key[0] & kept_bits, []).append(key)
+        pruned: dict[tuple[int, int], list[Mask]] = {}
         for key, masks in out.items():
-            members = groups[group_of[key]]
+            targets, level = key
+            members = groups[targets & kept_bits]
             if len(members) == 1:
                 pruned[key] = masks
                 continue
-            targets, level = key
             better = [
                 m
-                for other, other_level in members
-                if (other, other_level) != key
-                and other <= targets
-                and (level <= other_level < self.r or level == other_level == self.r)
-                for m in out[(other, other_level)]
+                for other in members
+                if other != key
+                and not other[0] & ~targets
+                and (level <= other[1] < self.r or level == other[1] == self.r)
+                for m in out[other]
             ]
             kept = [m for m in masks if not masks_cover(better, *m)] if better else masks
             if kept:
@@ -262,20 +272,21 @@ class Degeneralizer:
 
     def build(self) -> RawBuchi:
         """The reachable part of the degeneralized automaton."""
-        ids: dict[BaState, int] = {}
+        ids: dict[tuple[int, int], int] = {}
         names: list[str] = []
-        todo: list[BaState] = []
+        todo: list[tuple[int, int]] = []
 
-        def state_id(s: BaState) -> int:
-            if s not in ids:
+        def state_id(s: tuple[int, int]) -> int:
+            found = ids.get(s)
+            if found is None:
                 self._check_budget(len(names) + 1)
-                ids[s] = len(names)
-                names.append(self._name(s))
+                found = ids[s] = len(names)
+                names.append(self._name(*s))
                 todo.append(s)
-            return ids[s]
+            return found
 
         edges: dict[int, dict[int, list[Cube]]] = {}
-        initial_sets = self.vwaa.initial
+        initial_sets = [sum(1 << q for q in e) for e in self.vwaa.initial]
         if len(initial_sets) == 1:
             initial = state_id((initial_sets[0], 0))
         else:
@@ -283,17 +294,17 @@ class Degeneralizer:
             names.append("init")
             merged: dict[int, list[Cube]] = {}
             for e in initial_sets:
-                for target, cubes in self.successors(e, 0).items():
+                for target, masks in self._successor_masks(e, 0).items():
                     bucket = merged.setdefault(state_id(target), [])
-                    for cube in cubes:
+                    for cube in self._cubes(masks):
                         add_cube(bucket, cube)
             edges[initial] = merged
         while todo:
             s = todo.pop()
-            out: dict[int, list[Cube]] = {}
-            for target, cubes in self.successors(*s).items():
-                out[state_id(target)] = cubes
-            edges[ids[s]] = out
+            edges[ids[s]] = {
+                state_id(target): self._cubes(masks)
+                for target, masks in self._successor_masks(*s).items()
+            }
         accepting = {i for s, i in ids.items() if s[1] == self.r}
         self.one_level_per_set = len({e for e, _ in ids}) == len(ids)
         if self.r == 0 and len(initial_sets) != 1:
@@ -304,10 +315,26 @@ class Degeneralizer:
         if self.max_states is not None and states > self.max_states:
             raise AutomatonTooLargeError(self.max_states)
 
-    def _name(self, s: BaState) -> str:
-        e, level = s
+    def _name(self, e: int, level: int) -> str:
+        states = self._states_of(e)
         names = self._state_names
-        for q in e - names.keys():
+        for q in states - names.keys():
             names[q] = self.vwaa.name(q)
-        body = " & ".join(sorted(names[q] for q in e)) or "true"
+        body = " & ".join(sorted(names[q] for q in states)) or "true"
         return f"{{{body}}}/{level}"
+
+
+class _CubeOf(dict[Mask, Cube]):
+    """The cube of each mask, made once (the masks' bits are those of ``atom_bits``)."""
+
+    def __init__(self, atom_bits: dict[str, int]) -> None:
+        super().__init__()
+        self.atom_bits = atom_bits
+
+    def __missing__(self, mask: Mask) -> Cube:
+        pos, neg = mask
+        items = self.atom_bits.items()
+        cube = self[mask] = Cube(
+            frozenset(a for a, b in items if b & pos), frozenset(a for a, b in items if b & neg)
+        )
+        return cube
