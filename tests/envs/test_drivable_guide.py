@@ -44,7 +44,7 @@ def lane() -> tuple[World, MissionPlan]:
         [Box(np.array([4.0, 3.2]), np.array([8.0, 5.0]))],
         {"a": Ball(np.array([10.5, 2.0]), 0.8), "b": Ball(np.array([1.5, 3.8]), 0.6)},
     )
-    options = PlannerSpec(seed=0, refine_seconds=0.2, time_limit=20.0)
+    options = PlannerSpec(seed=0, time_limit=20.0)
     plan = plan_mission(world, "<>(a && <>b)", np.array(START[:2]), 0.4, options)
     return world, plan
 

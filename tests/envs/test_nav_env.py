@@ -91,7 +91,7 @@ def planned(dim: int, task: str, clearance: float = CLEARANCE) -> tuple[World, M
     second)."""
     world = world_2d() if dim == 2 else world_3d()
     start = np.array(START_2D if dim == 2 else START_3D)
-    options = PlannerSpec(seed=0, refine_seconds=0.2, time_limit=20.0)
+    options = PlannerSpec(seed=0, time_limit=20.0)
     return world, plan_mission(world, task, start, clearance, options)
 
 
@@ -681,15 +681,23 @@ def test_split_subtask_into_shorter_legs(envs: list[NavEnv]) -> None:
 
 
 def test_r_ball_within_clearance_keeps_every_ball_clear_of_obstacles(envs: list[NavEnv]) -> None:
-    world, plan = planned(2, FINITE)
-    assert plan.r_ball > plan.clearance > 0
-    wide = build_env("unicycle", 2, task=FINITE)
-    held = build_env("unicycle", 2, task=FINITE, r_ball_within_clearance=True)
-    given = build_env("unicycle", 2, task=FINITE, r_ball_within_clearance=True, r_ball=1.0)
-    envs.extend([wide, held, given])
+    # r-balls of 1 m around a guide 0.35 m clear of the obstacles: wide ones must reach into them
+    world = world_2d()
+    options = PlannerSpec(seed=0, time_limit=20.0, r_ball=1.0)
+    plan = plan_mission(world, FINITE, np.array(START_2D), CLEARANCE, options)
+    assert plan.r_ball == 1.0 and plan.clearance == CLEARANCE
+
+    def env(**kw: Any) -> NavEnv:
+        built = make_env(mission("unicycle", 2), plan.subtasks[0], world=world, plan=plan, **kw)
+        envs.append(built)
+        return built
+
+    wide = env()
+    held = env(r_ball_within_clearance=True)
+    given = env(r_ball_within_clearance=True, r_ball=1.5)
     assert {leg.guide.r for leg in wide.legs} == {plan.r_ball}
     assert {leg.guide.r for leg in held.legs} == {plan.clearance}
-    assert {leg.guide.r for leg in given.legs} == {1.0}
+    assert {leg.guide.r for leg in given.legs} == {1.5}
     for leg in held.legs:
         assert not world.in_collision(leg.guide.centers, plan.clearance - 1e-6).any()
     assert any(world.in_collision(leg.guide.centers, plan.r_ball).any() for leg in wide.legs)

@@ -37,7 +37,7 @@ def lane() -> tuple[World, MissionPlan]:
         ],
         {"a": Ball(np.array([10.5, 2.0]), 0.6)},
     )
-    options = PlannerSpec(seed=0, refine_seconds=0.2, time_limit=20.0)
+    options = PlannerSpec(seed=0, time_limit=20.0)
     plan = plan_mission(world, "<>a", np.array(START[:2]), 0.4, options)
     return world, plan
 

@@ -14,7 +14,7 @@ from planner.search.planner_spec import PlannerSpec
 
 CLEARANCE = 0.5
 START = np.array([1.0, 5.0])
-QUICK = PlannerSpec(seed=0, refine_seconds=0.3)
+QUICK = PlannerSpec(seed=0)
 
 
 def corridor() -> World:

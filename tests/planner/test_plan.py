@@ -40,7 +40,7 @@ def reference_world() -> World:
 
 
 START = np.array([0.8, 0.1])
-QUICK = PlannerSpec(seed=0, refine_seconds=0.2)
+QUICK = PlannerSpec(seed=0)
 
 
 @pytest.fixture(scope="module")
