@@ -26,6 +26,8 @@ from planner.ltl.masks import Mask, add_mask, masks_cover
 from planner.ltl.vwaa import Vwaa
 
 BaState = tuple[frozenset[int], int]
+BitState = tuple[int, int]
+"""A Büchi state as the degeneralizer keeps it: the bits of its VWAA states, its level."""
 MoveBits = list[tuple[bool, int, int, int, bool]]
 """A VWAA state's moves: (marked, targets as bits, the cube's masks, whether it gives way)."""
 
@@ -90,35 +92,33 @@ class Degeneralizer:
         out = self._successor_masks(sum(1 << q for q in e), level)
         return {(self._states_of(bits), j): self._cubes(masks) for (bits, j), masks in out.items()}
 
-    def _successor_masks(self, e: int, level: int) -> dict[tuple[int, int], list[Mask]]:
+    def _successor_masks(self, e: int, level: int) -> dict[BitState, list[Mask]]:
         """:meth:`successors` with state sets and cubes as bit masks."""
         start = level if level < self.r else 0
         ranks = self._ranks(start)
-        partial: dict[tuple[int, int], list[Mask]] = {(0, self.r - start): [(0, 0)]}
+        partial: dict[BitState, list[Mask]] = {(0, self.r - start): [(0, 0)]}
         for q_rank, moves in self._ordered_moves(e, start):
-            grown: dict[tuple[int, int], list[Mask]] = {}
-            bucket_of = grown.get
+            grown: dict[BitState, list[Mask]] = {}
             for (target_bits, missed), masks in partial.items():
                 for marked, move_targets, move_pos, move_neg, gives_way in moves:
                     if gives_way and (q_rank is None or missed < q_rank):
                         continue  # staying misses nothing more: it simulates leaving
+                    new_missed = missed
                     if q_rank is not None and not marked and q_rank < missed:
-                        key = (target_bits | move_targets, q_rank)
-                    else:
-                        key = (target_bits | move_targets, missed)
+                        new_missed = q_rank
+                    key = (target_bits | move_targets, new_missed)
                     for pos, neg in masks:
                         pos |= move_pos
                         neg |= move_neg
                         if not pos & neg:
-                            bucket = bucket_of(key)
+                            bucket = grown.get(key)
                             if bucket is None:
                                 grown[key] = [(pos, neg)]
                             else:
                                 add_mask(bucket, pos, neg)
             partial = grown
-            if self.max_states is not None:
-                self._check_budget(len(partial))
-        out: dict[tuple[int, int], list[Mask]] = {}
+            self._check_budget(len(partial))
+        out: dict[BitState, list[Mask]] = {}
         for (target_bits, missed), masks in partial.items():
             created = target_bits & ~e & self._final_bits
             while created:
@@ -234,9 +234,7 @@ class Degeneralizer:
         cube_of = self._cube_of
         return [cube_of[mask] for mask in masks]
 
-    def _prune_dominated(
-        self, out: dict[tuple[int, int], list[Mask]]
-    ) -> dict[tuple[int, int], list[Mask]]:
+    def _prune_dominated(self, out: dict[BitState, list[Mask]]) -> dict[BitState, list[Mask]]:
         """Drop cubes whose letters also lead to a state that directly simulates the target.
 
         ``(e', j')`` simulates ``(e, j)`` when ``e'`` drops only obligations from which no
@@ -247,10 +245,10 @@ class Degeneralizer:
         # ``other <= targets`` and ``targets - other <= free`` imply that the two agree outside
         # ``free``: only states of the same group can simulate each other (for a conjunction
         # of k eventualities, 2^k successors in 2^k groups instead of 4^k pairs).
-        groups: dict[int, list[tuple[int, int]]] = {}
+        groups: dict[int, list[BitState]] = {}
         for key in out:
             groups.setdefault(key[0] & kept_bits, []).append(key)
-        pruned: dict[tuple[int, int], list[Mask]] = {}
+        pruned: dict[BitState, list[Mask]] = {}
         for key, masks in out.items():
             targets, level = key
             members = groups[targets & kept_bits]
@@ -272,11 +270,11 @@ class Degeneralizer:
 
     def build(self) -> RawBuchi:
         """The reachable part of the degeneralized automaton."""
-        ids: dict[tuple[int, int], int] = {}
+        ids: dict[BitState, int] = {}
         names: list[str] = []
-        todo: list[tuple[int, int]] = []
+        todo: list[BitState] = []
 
-        def state_id(s: tuple[int, int]) -> int:
+        def state_id(s: BitState) -> int:
             found = ids.get(s)
             if found is None:
                 self._check_budget(len(names) + 1)
