@@ -74,7 +74,6 @@ class Degeneralizer:
         self.acc_index = {f: i + 1 for i, f in enumerate(vwaa.finals)}
         self._atom_bits: dict[str, int] = {}
         self._move_bits: dict[int, MoveBits] = {}
-        self._ordered: dict[tuple[int, int], list[tuple[int | None, MoveBits]]] = {}
         self._final_bits = sum(1 << f for f in vwaa.finals)
         self._free_bits = sum(1 << q for q in vwaa.final_free)
         self._giving_way: dict[tuple[int, int], Cube] | None = None
@@ -139,12 +138,9 @@ class Degeneralizer:
     def _ordered_moves(self, e: int, start: int) -> list[tuple[int | None, MoveBits]]:
         """The states of ``e`` in the order of their acceptance sets after ``start``'s (the
         others first), each as its rank and its moves."""
-        ordered = self._ordered.get((e, start))
-        if ordered is None:
-            ranks = self._ranks(start)
-            states = sorted(self._states_of(e), key=lambda q: (q in ranks, ranks.get(q, 0), q))
-            ordered = self._ordered[(e, start)] = [(ranks.get(q), self._moves(q)) for q in states]
-        return ordered
+        ranks = self._ranks(start)
+        states = sorted(self._states_of(e), key=lambda q: (q in ranks, ranks.get(q, 0), q))
+        return [(ranks.get(q), self._moves(q)) for q in states]
 
     def _ranks(self, start: int) -> dict[int, int]:
         """Each final state's rank: how many acceptance sets after ``start``'s its set comes."""
