@@ -15,6 +15,7 @@ and finally states that are unreachable or cannot reach an accepting cycle go.
 from __future__ import annotations
 
 import math
+from collections import Counter
 
 import numpy as np
 
@@ -84,10 +85,13 @@ def affordable_states(atoms: int) -> int:
 
 
 def _within_budget(ba: RawBuchi, cubes: int) -> bool:
+    states = ba.num_states
+    if states * cubes > SIMULATION_BUDGET and states**2 > LETTER_SIMULATION_BUDGET:
+        return False  # over both budgets whatever its atoms: no need to collect them
     atoms = len(_atoms(ba))
     if atoms <= LETTER_ATOMS:
-        return ba.num_states**2 * letter_words(atoms) <= LETTER_SIMULATION_BUDGET
-    return ba.num_states * cubes <= SIMULATION_BUDGET
+        return states**2 * letter_words(atoms) <= LETTER_SIMULATION_BUDGET
+    return states * cubes <= SIMULATION_BUDGET
 
 
 def simulation(ba: RawBuchi) -> list[set[int]]:
@@ -294,25 +298,62 @@ def merge_identical(ba: RawBuchi) -> RawBuchi:
     """Merge states with the same acceptance and the same guards to the same classes.
 
     This is the coarsest such partition (computed by refinement); it is cheap and shrinks
-    the automaton before the quadratic simulation computation.
+    the automaton before the quadratic simulation computation. The first split is by the
+    fewest-literal cubes to each acceptance class, which identical states share (such a cube
+    is implied by no other, so joining guards keeps it), and is cheaper than joining every
+    guard; a state alone in its class is never split again, so its guards are not joined.
     """
     n = ba.num_states
-    block = [1 if p in ba.accepting else 0 for p in range(n)]
-    while True:
+    accepting = [1 if p in ba.accepting else 0 for p in range(n)]
+    literals: dict[int, int] = {}
+    first: dict[object, int] = {}
+    block = [
+        first.setdefault(
+            (accepting[p], _fewest_literal_cubes(ba.edges.get(p, {}), accepting, literals)),
+            len(first),
+        )
+        for p in range(n)
+    ]
+    count = len(first)
+    while count < n:
+        sizes = Counter(block)
         signatures: dict[object, int] = {}
         new_block = []
         for p in range(n):
-            out = _guards_by_block(ba.edges.get(p, {}), block)
-            sig = (block[p], frozenset((b, frozenset(cs)) for b, cs in out.items()))
+            if sizes[block[p]] == 1:
+                sig: object = block[p]
+            else:
+                out = _guards_by_block(ba.edges.get(p, {}), block)
+                sig = (block[p], frozenset((b, frozenset(cs)) for b, cs in out.items()))
             new_block.append(signatures.setdefault(sig, len(signatures)))
-        stable = len(signatures) == len(set(block))
         block = new_block
-        if stable or len(signatures) == n:  # no block splits further, or every one is a state
+        if len(signatures) == count:  # no block split: the partition is stable
             break
+        count = len(signatures)
     members: dict[int, set[int]] = {}
     for p in range(n):
         members.setdefault(block[p], set()).add(p)
     return quotient(ba, [members[block[p]] for p in range(n)])
+
+
+def _fewest_literal_cubes(
+    out: dict[int, list[Cube]], block: list[int], literals: dict[int, int]
+) -> frozenset[tuple[int, frozenset[Cube]]]:
+    """For each block of ``out``'s targets, its cubes with the fewest literals (``literals``
+    caches each cube's count by id)."""
+    fewest: dict[int, tuple[int, set[Cube]]] = {}
+    for target, cubes in out.items():
+        b = block[target]
+        for cube in cubes:
+            count = literals.get(id(cube))
+            if count is None:
+                count = literals[id(cube)] = len(cube.pos) + len(cube.neg)
+            found = fewest.get(b)
+            if found is None or count < found[0]:
+                fewest[b] = (count, {cube})
+            elif count == found[0]:
+                found[1].add(cube)
+    return frozenset((b, frozenset(cubes)) for b, (_, cubes) in fewest.items())
 
 
 def _guards_by_block(out: dict[int, list[Cube]], block: list[int]) -> dict[int, list[Cube]]:
