@@ -12,15 +12,14 @@ from collections import deque
 from collections.abc import Callable, Hashable, Iterable, Sequence
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any, TypeVar
+from typing import Any, NamedTuple, TypeVar
 
 from planner.ltl.guard import Cube, Guard
 
 N = TypeVar("N", bound=Hashable)
 
 
-@dataclass(frozen=True)
-class Edge:
+class Edge(NamedTuple):
     """A transition ``source --guard--> target``; the guard is never false."""
 
     source: int
@@ -51,17 +50,17 @@ class Buchi:
             raise ValueError("an accepting state id is out of range")
         known = set(self.atoms)
         checked: set[int] = set()  # guards are shared between edges: each is checked once
-        for e in self.edges:
-            if not (0 <= e.source < n and 0 <= e.target < n):
-                raise ValueError(f"edge {e.source}->{e.target} leaves the {n} states")
-            if id(e.guard) in checked:
+        for source, guard, target in self.edges:
+            if not (0 <= source < n and 0 <= target < n):
+                raise ValueError(f"edge {source}->{target} leaves the {n} states")
+            if id(guard) in checked:
                 continue
-            checked.add(id(e.guard))
-            if e.guard.is_false:
-                raise ValueError(f"edge {e.source}->{e.target} has a false guard")
-            if not e.guard.atoms <= known:
-                unknown = ", ".join(sorted(e.guard.atoms - known))
-                raise ValueError(f"edge {e.source}->{e.target} uses {unknown}, not in atoms")
+            checked.add(id(guard))
+            if guard.is_false:
+                raise ValueError(f"edge {source}->{target} has a false guard")
+            if not guard.atoms <= known:
+                unknown = ", ".join(sorted(guard.atoms - known))
+                raise ValueError(f"edge {source}->{target} uses {unknown}, not in atoms")
 
     @property
     def num_states(self) -> int:

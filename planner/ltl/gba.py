@@ -34,7 +34,11 @@ MoveBits = list[tuple[bool, int, int, int, bool]]
 
 @dataclass
 class RawBuchi:
-    """A Büchi automaton under construction: ``edges[source][target]`` lists cubes."""
+    """A Büchi automaton under construction: ``edges[source][target]`` lists cubes.
+
+    A list is not changed once it is in ``edges``: the reductions share lists between the
+    automata they return and make new ones where cubes change.
+    """
 
     initial: int
     accepting: set[int]
@@ -244,25 +248,43 @@ class Degeneralizer:
         groups: dict[int, list[BitState]] = {}
         for key in out:
             groups.setdefault(key[0] & kept_bits, []).append(key)
-        pruned: dict[BitState, list[Mask]] = {}
-        for key, masks in out.items():
-            targets, level = key
-            members = groups[targets & kept_bits]
+        kept: dict[BitState, list[Mask]] = {}
+        for members in groups.values():
             if len(members) == 1:
-                pruned[key] = masks
                 continue
-            better = [
-                m
-                for other in members
-                if other != key
-                and not other[0] & ~targets
-                and (level <= other[1] < self.r or level == other[1] == self.r)
-                for m in out[other]
-            ]
-            kept = [m for m in masks if not masks_cover(better, *m)] if better else masks
-            if kept:
-                pruned[key] = kept
-        return pruned
+            if all(other[0] == members[0][0] for other in members):
+                self._prune_by_level(out, members, kept)
+                continue
+            for key in members:
+                targets, level = key
+                better = [
+                    m
+                    for other in members
+                    if other != key
+                    and not other[0] & ~targets
+                    and (level <= other[1] < self.r or level == other[1] == self.r)
+                    for m in out[other]
+                ]
+                if better:
+                    kept[key] = [m for m in out[key] if not masks_cover(better, *m)]
+        return {key: masks for key, found in out.items() if (masks := kept.get(key, found))}
+
+    def _prune_by_level(
+        self,
+        out: dict[BitState, list[Mask]],
+        members: list[BitState],
+        kept: dict[BitState, list[Mask]],
+    ) -> None:
+        """:meth:`_prune_dominated` for targets that differ in their level alone: each below
+        ``r`` is simulated by those of higher levels below ``r``."""
+        better: list[Mask] = []
+        for key in sorted(members, key=lambda member: -member[1]):
+            if key[1] == self.r:
+                continue
+            masks = out[key]
+            if better:
+                kept[key] = [m for m in masks if not masks_cover(better, *m)]
+            better += masks
 
     def build(self) -> RawBuchi:
         """The reachable part of the degeneralized automaton."""
@@ -324,11 +346,15 @@ class _CubeOf(dict[Mask, Cube]):
     def __init__(self, atom_bits: dict[str, int]) -> None:
         super().__init__()
         self.atom_bits = atom_bits
+        self._atoms: dict[int, frozenset[str]] = {}
 
     def __missing__(self, mask: Mask) -> Cube:
         pos, neg = mask
-        items = self.atom_bits.items()
-        cube = self[mask] = Cube(
-            frozenset(a for a, b in items if b & pos), frozenset(a for a, b in items if b & neg)
-        )
+        cube = self[mask] = Cube(self._atoms_of(pos), self._atoms_of(neg))
         return cube
+
+    def _atoms_of(self, bits: int) -> frozenset[str]:
+        atoms = self._atoms.get(bits)
+        if atoms is None:
+            atoms = self._atoms[bits] = frozenset(a for a, b in self.atom_bits.items() if b & bits)
+        return atoms

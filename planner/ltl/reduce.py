@@ -263,7 +263,7 @@ def trim(ba: RawBuchi) -> RawBuchi:
     edges: dict[int, dict[int, list[Cube]]] = {}
     for p in order:
         edges[new_id[p]] = {
-            new_id[t]: list(cs) for t, cs in ba.edges.get(p, {}).items() if t in new_id and cs
+            new_id[t]: cs for t, cs in ba.edges.get(p, {}).items() if t in new_id and cs
         }
     accepting = {new_id[p] for p in ba.accepting if p in new_id}
     names = [ba.names[p] for p in order]

@@ -92,28 +92,30 @@ def to_buchi(raw: RawBuchi, atom_names: tuple[str, ...]) -> Buchi:
     single: dict[int, Guard] = {}  # most transitions have one cube, shared between them
 
     def guard(cubes: list[Cube]) -> Guard:
-        if len(cubes) == 1:
-            found = single.get(id(cubes[0]))
-            if found is not None:
-                return found
         key = frozenset(cubes)
         found = guards.get(key)
         if found is None:
             found = guards[key] = Guard(key)
-        if len(cubes) == 1:
-            single[id(cubes[0])] = found
         return found
 
-    edges = tuple(
-        Edge(source, guard(cubes), target)
-        for source in sorted(raw.edges)
-        for target, cubes in sorted(raw.edges[source].items())
-        if cubes
-    )
+    edges = []
+    for source in sorted(raw.edges):
+        out = raw.edges[source]
+        for target in sorted(out):
+            cubes = out[target]
+            if len(cubes) == 1:
+                found = single.get(id(cubes[0]))
+                if found is None:
+                    found = single[id(cubes[0])] = guard(cubes)
+            elif cubes:
+                found = guard(cubes)
+            else:
+                continue
+            edges.append(Edge(source, found, target))
     return Buchi(
         atoms=atom_names,
         state_names=tuple(names),
         initial=raw.initial,
         accepting=frozenset(raw.accepting),
-        edges=edges,
+        edges=tuple(edges),
     )
