@@ -315,12 +315,13 @@ class Degeneralizer:
                     for cube in self._cubes(masks):
                         add_cube(bucket, cube)
             edges[initial] = merged
+        cube_of = self._cube_of
         while todo:
             s = todo.pop()
-            edges[ids[s]] = {
-                state_id(target): self._cubes(masks)
-                for target, masks in self._successor_masks(*s).items()
-            }
+            row = edges[ids[s]] = {}
+            for target, masks in self._successor_masks(*s).items():
+                found = ids.get(target)
+                row[state_id(target) if found is None else found] = [cube_of[m] for m in masks]
         accepting = {i for s, i in ids.items() if s[1] == self.r}
         self.one_level_per_set = len({e for e, _ in ids}) == len(ids)
         if self.r == 0 and len(initial_sets) != 1:
