@@ -19,6 +19,7 @@ guards of merged partial products are unions of cubes, kept irredundant, so a cu
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from operator import itemgetter
 
 from planner.errors import AutomatonTooLargeError
 from planner.ltl.guard import Cube
@@ -85,6 +86,7 @@ class Degeneralizer:
         self._cube_of = _CubeOf(self._atom_bits)
         self._state_names: dict[int, str] = {}
         self._ranks_from: dict[int, dict[int, int]] = {}
+        self._restarts: dict[int, dict[BitState, list[Mask]]] = {}
         self.one_level_per_set = True
         """After ``build``: whether every GBA state ``e`` was reached at one level only, so
         the degeneralization added no copies (another order of the acceptance sets reaches
@@ -122,8 +124,9 @@ class Degeneralizer:
             partial = grown
             self._check_budget(len(partial))
         out: dict[BitState, list[Mask]] = {}
+        finals_outside = self._final_bits & ~e
         for (target_bits, missed), masks in partial.items():
-            created = target_bits & ~e & self._final_bits
+            created = target_bits & finals_outside
             while created:
                 f = (created & -created).bit_length() - 1
                 created &= created - 1
@@ -278,7 +281,7 @@ class Degeneralizer:
         """:meth:`_prune_dominated` for targets that differ in their level alone: each below
         ``r`` is simulated by those of higher levels below ``r``."""
         better: list[Mask] = []
-        for key in sorted(members, key=lambda member: -member[1]):
+        for key in sorted(members, key=itemgetter(1), reverse=True):
             if key[1] == self.r:
                 continue
             masks = out[key]
@@ -319,7 +322,7 @@ class Degeneralizer:
         while todo:
             s = todo.pop()
             row = edges[ids[s]] = {}
-            for target, masks in self._successor_masks(*s).items():
+            for target, masks in self._build_successors(*s).items():
                 found = ids.get(target)
                 row[state_id(target) if found is None else found] = [cube_of[m] for m in masks]
         accepting = {i for s, i in ids.items() if s[1] == self.r}
@@ -327,6 +330,16 @@ class Degeneralizer:
         if self.r == 0 and len(initial_sets) != 1:
             accepting.add(initial)
         return RawBuchi(initial, accepting, edges, names)
+
+    def _build_successors(self, e: int, level: int) -> dict[BitState, list[Mask]]:
+        """:meth:`_successor_masks` for :meth:`build`: the accepting level starts the next
+        round from level 0's, so a set reached at both gets its successors made once."""
+        if 0 < level < self.r or self.r == 0:
+            return self._successor_masks(e, level)
+        found = self._restarts.pop(e, None)
+        if found is None:
+            found = self._restarts[e] = self._successor_masks(e, level)
+        return found
 
     def _check_budget(self, states: int) -> None:
         if self.max_states is not None and states > self.max_states:
