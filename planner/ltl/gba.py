@@ -31,6 +31,9 @@ BitState = tuple[int, int]
 """A Büchi state as the degeneralizer keeps it: the bits of its VWAA states, its level."""
 MoveBits = list[tuple[bool, int, int, int, bool]]
 """A VWAA state's moves: (marked, targets as bits, the cube's masks, whether it gives way)."""
+Step = tuple[int, int, int, int, int]
+"""A move in the product: skipped where the rank missed so far is below the first; the
+rank missed after it is at most the second; then its targets as bits and its cube's masks."""
 
 
 @dataclass
@@ -86,6 +89,7 @@ class Degeneralizer:
         self._cube_of = _CubeOf(self._atom_bits)
         self._state_names: dict[int, str] = {}
         self._ranks_from: dict[int, dict[int, int]] = {}
+        self._order_from: dict[int, list[tuple[int, list[Step]]]] = {}
         self._restarts: dict[int, dict[BitState, list[Mask]]] = {}
         self.one_level_per_set = True
         """After ``build``: whether every GBA state ``e`` was reached at one level only, so
@@ -102,16 +106,13 @@ class Degeneralizer:
         start = level if level < self.r else 0
         ranks = self._ranks(start)
         partial: dict[BitState, list[Mask]] = {(0, self.r - start): [(0, 0)]}
-        for q_rank, moves in self._ordered_moves(e, start):
+        for steps in self._steps(e, start):
             grown: dict[BitState, list[Mask]] = {}
             for (target_bits, missed), masks in partial.items():
-                for marked, move_targets, move_pos, move_neg, gives_way in moves:
-                    if gives_way and (q_rank is None or missed < q_rank):
+                for skip_below, lower_to, move_targets, move_pos, move_neg in steps:
+                    if missed < skip_below:
                         continue  # staying misses nothing more: it simulates leaving
-                    new_missed = missed
-                    if q_rank is not None and not marked and q_rank < missed:
-                        new_missed = q_rank
-                    key = (target_bits | move_targets, new_missed)
+                    key = (target_bits | move_targets, lower_to if lower_to < missed else missed)
                     for pos, neg in masks:
                         pos |= move_pos
                         neg |= move_neg
@@ -142,12 +143,31 @@ class Degeneralizer:
                 add_mask(bucket, pos, neg)
         return self._prune_dominated(out)
 
-    def _ordered_moves(self, e: int, start: int) -> list[tuple[int | None, MoveBits]]:
-        """The states of ``e`` in the order of their acceptance sets after ``start``'s (the
-        others first), each as its rank and its moves."""
-        ranks = self._ranks(start)
-        states = sorted(self._states_of(e), key=lambda q: (q in ranks, ranks.get(q, 0), q))
-        return [(ranks.get(q), self._moves(q)) for q in states]
+    def _steps(self, e: int, start: int) -> list[list[Step]]:
+        """The moves of the states of ``e`` as :data:`Step` s, state by state in the order of
+        their acceptance sets after ``start``'s (the others first)."""
+        order = self._order_from.get(start)
+        if order is None:
+            ranks = self._ranks(start)
+            order = self._order_from[start] = [
+                (q, self._step_moves(q, ranks.get(q)))
+                for q in sorted(self.vwaa.moves, key=lambda q: (q in ranks, ranks.get(q, 0), q))
+            ]
+        return [steps for q, steps in order if e >> q & 1]
+
+    def _step_moves(self, q: int, rank: int | None) -> list[Step]:
+        """``q``'s moves as steps of the product, ``rank`` its rank (None: unranked).
+
+        An unranked state never lowers the level and never takes a move that gives way; a
+        ranked one takes such a move only where nothing of a lower rank was missed, and
+        lowers the level to its rank when it stays unmarked."""
+        never = self.r + 1
+        if rank is None:
+            return [(-1, never, t, pos, neg) for _, t, pos, neg, way in self._moves(q) if not way]
+        return [
+            (rank if way else -1, never if marked else rank, t, pos, neg)
+            for marked, t, pos, neg, way in self._moves(q)
+        ]
 
     def _ranks(self, start: int) -> dict[int, int]:
         """Each final state's rank: how many acceptance sets after ``start``'s its set comes."""
