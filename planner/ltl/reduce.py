@@ -246,7 +246,8 @@ def trim(ba: RawBuchi) -> RawBuchi:
     Surviving states are renumbered in breadth-first order from the initial state.
     """
     succ = {p: [t for t in out if out[t]] for p, out in ba.edges.items()}
-    reach = _reachable([ba.initial], succ)
+    reached = _bfs_order(ba.initial, succ)
+    reach = set(reached)
 
     def successors(p: int) -> list[int]:
         return succ.get(p, [])
@@ -258,7 +259,7 @@ def trim(ba: RawBuchi) -> RawBuchi:
         for t in succ.get(p, []):
             pred.setdefault(t, []).append(p)
     useful = _reachable(sorted(good), pred) & reach
-    order = [p for p in _bfs_order(ba.initial, succ) if p in useful or p == ba.initial]
+    order = [p for p in reached if p in useful or p == ba.initial]
     new_id = {p: i for i, p in enumerate(order)}
     edges: dict[int, dict[int, list[Cube]]] = {}
     for p in order:
