@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 from collections import deque
-from collections.abc import Callable, Hashable, Iterable, Sequence
+from collections.abc import Callable, Hashable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any, NamedTuple, TypeVar
@@ -209,39 +209,41 @@ def nodes_on_cycles(starts: Iterable[N], step: Callable[[N], Iterable[N]]) -> se
     low: dict[N, int] = {}
     on_stack: set[N] = set()
     stack: list[N] = []
-    succ: dict[N, list[N]] = {}
+    looped: set[N] = set()
     cyclic: set[N] = set()
     for root in starts:
         if root in index:
             continue
-        work: list[tuple[N, int]] = [(root, 0)]
+        index[root] = low[root] = len(index)
+        stack.append(root)
+        on_stack.add(root)
+        work: list[tuple[N, Iterator[N]]] = [(root, iter(step(root)))]
         while work:
-            node, i = work.pop()
-            if i == 0:
-                index[node] = low[node] = len(index)
-                stack.append(node)
-                on_stack.add(node)
-                succ[node] = list(step(node))
-            children = succ[node]
-            if i < len(children):
-                work.append((node, i + 1))
-                child = children[i]
+            node, children = work[-1]
+            for child in children:
                 if child not in index:
-                    work.append((child, 0))
-                elif child in on_stack:
+                    index[child] = low[child] = len(index)
+                    stack.append(child)
+                    on_stack.add(child)
+                    work.append((child, iter(step(child))))
+                    break
+                if child in on_stack:
+                    if child == node:
+                        looped.add(node)
                     low[node] = min(low[node], index[child])
-                continue
-            if low[node] == index[node]:
-                component = []
-                while True:
-                    member = stack.pop()
-                    on_stack.discard(member)
-                    component.append(member)
-                    if member == node:
-                        break
-                if len(component) > 1 or node in succ[node]:
-                    cyclic.update(component)
-            if work:
-                parent = work[-1][0]
-                low[parent] = min(low[parent], low[node])
+            else:
+                work.pop()
+                if low[node] == index[node]:
+                    component = []
+                    while True:
+                        member = stack.pop()
+                        on_stack.discard(member)
+                        component.append(member)
+                        if member == node:
+                            break
+                    if len(component) > 1 or node in looped:
+                        cyclic.update(component)
+                if work:
+                    parent = work[-1][0]
+                    low[parent] = min(low[parent], low[node])
     return cyclic

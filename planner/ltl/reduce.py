@@ -61,7 +61,7 @@ def reduce_buchi(ba: RawBuchi) -> RawBuchi:
 
 
 def _num_cubes(ba: RawBuchi) -> int:
-    return sum(len(cubes) for out in ba.edges.values() for cubes in out.values())
+    return sum(sum(map(len, out.values())) for out in ba.edges.values())
 
 
 def _atoms(ba: RawBuchi) -> list[str]:

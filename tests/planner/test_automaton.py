@@ -8,7 +8,7 @@ import re
 
 import pytest
 
-from planner.ltl.automaton import Buchi, Edge
+from planner.ltl.automaton import Buchi, Edge, nodes_on_cycles
 from planner.ltl.guard import Cube, Guard, covers
 from planner.ltl.translate import translate
 from tests.planner.ltl_random import PROPS, random_formula, random_lasso
@@ -224,3 +224,34 @@ def test_dot_and_json_exports() -> None:
             e for e in nba.edges if (e.source, e.target) == (edge["source"], edge["target"])
         )
         assert parse_condition(edge["guard"]).equivalent(original.guard)
+
+
+def _reach(graph: dict[int, list[int]], starts: list[int]) -> set[int]:
+    seen: set[int] = set()
+    todo = list(starts)
+    while todo:
+        node = todo.pop()
+        if node not in seen:
+            seen.add(node)
+            todo.extend(graph[node])
+    return seen
+
+
+def test_nodes_on_cycles_are_the_reachable_nodes_that_reach_themselves() -> None:
+    rng = random.Random(5)
+    for _ in range(300):
+        n = rng.randrange(1, 12)
+        graph = {v: rng.sample(range(n), rng.randrange(0, min(n, 3) + 1)) for v in range(n)}
+        starts = rng.sample(range(n), rng.randrange(1, min(n, 2) + 1))
+        calls: list[int] = []
+
+        def step(
+            v: int, graph: dict[int, list[int]] = graph, calls: list[int] = calls
+        ) -> list[int]:
+            calls.append(v)
+            return graph[v]
+
+        reachable = _reach(graph, starts)
+        expected = {v for v in reachable if v in _reach(graph, graph[v])}
+        assert nodes_on_cycles(starts, step) == expected
+        assert sorted(calls) == sorted(reachable)  # once per reachable node
