@@ -1,0 +1,24 @@
+"""The translator's instruction count (``bench/translator_instructions.py``) measures the
+translation alone: more instructions for a larger automaton, none for the imports."""
+
+from __future__ import annotations
+
+import shutil
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import pytest
+
+from bench.translator_instructions import translation
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.skipif(shutil.which("valgrind") is None, reason="valgrind is not installed")
+@pytest.mark.timeout(300)
+def test_translation_counts_grow_with_the_automaton() -> None:
+    with ThreadPoolExecutor(2) as pool:
+        one = translation(ROOT, "gf-and", 1, pool)
+        four = translation(ROOT, "gh-r", 4, pool)
+    assert 0 < one < four
+    assert one < 50_000_000  # the imports (some 600 million) are not counted
