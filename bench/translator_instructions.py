@@ -39,8 +39,11 @@ def instructions(tree: Path, family: str, k: int, stage: str) -> int:
     ``family(k)``, then translates it when ``stage`` is ``translate``."""
     command = ["valgrind", "--tool=callgrind", "--callgrind-out-file=/dev/null"]
     command += [sys.executable, "-c", SCRIPT, family, str(k), stage]
+    # ``-c`` puts the working directory first on the path: run in ``tree``. A fixed hash
+    # seed keeps the order of sets of strings, and so the work, the same from run to run.
+    environment = {"PYTHONPATH": str(tree), "PYTHONHASHSEED": "0"}
     done = subprocess.run(
-        command, capture_output=True, text=True, env={"PYTHONPATH": str(tree)}, check=True
+        command, capture_output=True, text=True, cwd=tree, env=environment, check=True
     )
     found = re.search(r"Collected : (\d+)", done.stderr)
     if found is None:

@@ -22,3 +22,17 @@ def test_translation_counts_grow_with_the_automaton() -> None:
         four = translation(ROOT, "gh-r", 4, pool)
     assert 0 < one < four
     assert one < 50_000_000  # the imports (some 600 million) are not counted
+
+
+@pytest.mark.skipif(shutil.which("valgrind") is None, reason="valgrind is not installed")
+@pytest.mark.timeout(300)
+def test_the_tree_given_is_the_one_counted(tmp_path: Path) -> None:
+    shutil.copytree(ROOT / "planner", tmp_path / "planner")
+    translate = tmp_path / "planner" / "ltl" / "translate.py"
+    twice = "\n\n_once = translate\n\n\ndef translate(*args, **kwargs):\n"
+    twice += "    _once(*args, **kwargs)\n    return _once(*args, **kwargs)\n"
+    translate.write_text(translate.read_text() + twice)
+    with ThreadPoolExecutor(2) as pool:
+        here = translation(ROOT, "gh-r", 3, pool)
+        doubled = translation(tmp_path, "gh-r", 3, pool)
+    assert 1.4 * here < doubled < 2.2 * here  # the second call finds warm caches
