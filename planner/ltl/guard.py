@@ -119,7 +119,8 @@ class Guard:
     FALSE: ClassVar[Guard]
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "cubes", _absorb(self.cubes))
+        if len(self.cubes) > 1 or type(self.cubes) is not frozenset:
+            object.__setattr__(self, "cubes", _absorb(self.cubes))
 
     @staticmethod
     def of(cubes: Iterable[Cube]) -> Guard:
