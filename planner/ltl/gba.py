@@ -258,7 +258,8 @@ class Degeneralizer:
         return [cube_of[mask] for mask in masks]
 
     def _prune_dominated(self, out: dict[BitState, list[Mask]]) -> dict[BitState, list[Mask]]:
-        """Drop cubes whose letters also lead to a state that directly simulates the target.
+        """Drop cubes whose letters also lead to a state that directly simulates the target
+        (in place: ``out`` is returned).
 
         ``(e', j')`` simulates ``(e, j)`` when ``e'`` drops only obligations from which no
         final state is reachable (so no acceptance set can get worse) and ``j <= j' < r``
@@ -290,7 +291,12 @@ class Degeneralizer:
                 ]
                 if better:
                     kept[key] = [m for m in out[key] if not masks_cover(better, *m)]
-        return {key: masks for key, found in out.items() if (masks := kept.get(key, found))}
+        for key, masks in kept.items():
+            if masks:
+                out[key] = masks
+            else:
+                del out[key]
+        return out
 
     def _prune_by_level(
         self,
