@@ -344,13 +344,13 @@ class Degeneralizer:
                     for cube in self._cubes(masks):
                         add_cube(bucket, cube)
             edges[initial] = merged
-        cube_of = self._cube_of
+        cube_of = self._cube_of.__getitem__
         while todo:
             s = todo.pop()
             row = edges[ids[s]] = {}
             for target, masks in self._build_successors(*s).items():
                 found = ids.get(target)
-                row[state_id(target) if found is None else found] = [cube_of[m] for m in masks]
+                row[state_id(target) if found is None else found] = list(map(cube_of, masks))
         accepting = {i for s, i in ids.items() if s[1] == self.r}
         self.one_level_per_set = len({e for e, _ in ids}) == len(ids)
         if self.r == 0 and len(initial_sets) != 1:
