@@ -41,13 +41,15 @@ class RawBuchi:
     """A Büchi automaton under construction: ``edges[source][target]`` lists cubes.
 
     A list is not changed once it is in ``edges``: the reductions share lists between the
-    automata they return and make new ones where cubes change.
+    automata they return and make new ones where cubes change. ``names`` says what each
+    state stands for, for debugging (the degeneralizer's: the bits of its alternating
+    automaton's states and its level; see :meth:`Degeneralizer.describe`).
     """
 
     initial: int
     accepting: set[int]
     edges: dict[int, dict[int, list[Cube]]]
-    names: list[str] = field(default_factory=list)
+    names: list[object] = field(default_factory=list)
 
     @property
     def num_states(self) -> int:
@@ -87,7 +89,6 @@ class Degeneralizer:
         self._giving_way: dict[tuple[int, int], Cube] | None = None
         self._states_from_bits: dict[int, frozenset[int]] = {}
         self._cube_of = _CubeOf(self._atom_bits)
-        self._state_names: dict[int, str] = {}
         self._ranks_from: dict[int, dict[int, int]] = {}
         self._order_from: dict[int, list[tuple[int, list[Step]]]] = {}
         self._restarts: dict[int, dict[BitState, list[Mask]]] = {}
@@ -318,7 +319,7 @@ class Degeneralizer:
     def build(self) -> RawBuchi:
         """The reachable part of the degeneralized automaton."""
         ids: dict[BitState, int] = {}
-        names: list[str] = []
+        names: list[object] = []
         todo: list[BitState] = []
 
         def state_id(s: BitState) -> int:
@@ -326,7 +327,7 @@ class Degeneralizer:
             if found is None:
                 self._check_budget(len(names) + 1)
                 found = ids[s] = len(names)
-                names.append(self._name(*s))
+                names.append(s)
                 todo.append(s)
             return found
 
@@ -371,12 +372,10 @@ class Degeneralizer:
         if self.max_states is not None and states > self.max_states:
             raise AutomatonTooLargeError(self.max_states)
 
-    def _name(self, e: int, level: int) -> str:
-        states = self._states_of(e)
-        names = self._state_names
-        for q in states - names.keys():
-            names[q] = self.vwaa.name(q)
-        body = " & ".join(sorted(names[q] for q in states)) or "true"
+    def describe(self, state: BitState) -> str:
+        """A state of :meth:`build`'s automaton as text: its formulas and its level."""
+        e, level = state
+        body = " & ".join(sorted(self.vwaa.name(q) for q in self._states_of(e))) or "true"
         return f"{{{body}}}/{level}"
 
 

@@ -41,7 +41,7 @@ def prune(nba: Buchi, realisable: Callable[[Cube], bool]) -> Buchi:
     small = trim(raw)
     return Buchi(
         atoms=nba.atoms,
-        state_names=tuple(small.names),
+        state_names=tuple(map(str, small.names)),
         initial=small.initial,
         accepting=frozenset(small.accepting),
         edges=tuple(

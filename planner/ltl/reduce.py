@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 
@@ -380,19 +381,19 @@ def _fewest_literal_cubes(
 ) -> frozenset[tuple[int, frozenset[Cube]]]:
     """For each block of ``out``'s targets, its cubes with the fewest literals (``literals``
     caches each cube's count by id)."""
-    fewest: dict[int, tuple[int, set[Cube]]] = {}
+    fewest: dict[int, list[Any]] = {}  # each block's fewest count, then its cubes
     for target, cubes in out.items():
         b = block[target]
+        found = fewest.get(b)
         for cube in cubes:
             count = literals.get(id(cube))
             if count is None:
                 count = literals[id(cube)] = len(cube.pos) + len(cube.neg)
-            found = fewest.get(b)
             if found is None or count < found[0]:
-                fewest[b] = (count, {cube})
+                found = fewest[b] = [count, cube]
             elif count == found[0]:
-                found[1].add(cube)
-    return frozenset((b, frozenset(cubes)) for b, (_, cubes) in fewest.items())
+                found.append(cube)
+    return frozenset((b, frozenset(found[1:])) for b, found in fewest.items())
 
 
 def _guards_by_block(out: dict[int, list[Cube]], block: list[int]) -> dict[int, list[Cube]]:
