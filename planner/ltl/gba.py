@@ -272,12 +272,21 @@ class Degeneralizer:
         # of k eventualities, 2^k successors in 2^k groups instead of 4^k pairs).
         groups: dict[int, list[BitState]] = {}
         for key in out:
-            groups.setdefault(key[0] & kept_bits, []).append(key)
+            group = key[0] & kept_bits
+            members = groups.get(group)
+            if members is None:
+                groups[group] = [key]
+            else:
+                members.append(key)
         kept: dict[BitState, list[Mask]] = {}
         for members in groups.values():
             if len(members) == 1:
                 continue
-            if all(other[0] == members[0][0] for other in members):
+            bits = members[0][0]
+            for other in members:
+                if other[0] != bits:
+                    break
+            else:
                 self._prune_by_level(out, members, kept)
                 continue
             for key in members:
