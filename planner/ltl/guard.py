@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from typing import ClassVar
 
 
-@dataclass(frozen=True, order=False)
+@dataclass(frozen=True, order=False, slots=True)
 class Cube:
     """A conjunction of literals: every name in ``pos`` holds and none in ``neg`` does.
 
@@ -105,7 +105,7 @@ def _absorb(cubes: Iterable[Cube]) -> frozenset[Cube]:
     return frozenset(work)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Guard:
     """A propositional formula in disjunctive normal form: the disjunction of ``cubes``.
 
