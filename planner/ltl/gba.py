@@ -355,12 +355,19 @@ class Degeneralizer:
                         add_cube(bucket, cube)
             edges[initial] = merged
         cube_of = self._cube_of.__getitem__
+        alone: dict[Mask, list[Cube]] = {}  # one list per single cube, shared by its edges
         while todo:
             s = todo.pop()
             row = edges[ids[s]] = {}
             for target, masks in self._build_successors(*s).items():
+                if len(masks) == 1:
+                    cubes = alone.get(masks[0])
+                    if cubes is None:
+                        cubes = alone[masks[0]] = [cube_of(masks[0])]
+                else:
+                    cubes = list(map(cube_of, masks))
                 found = ids.get(target)
-                row[state_id(target) if found is None else found] = list(map(cube_of, masks))
+                row[state_id(target) if found is None else found] = cubes
         accepting = {i for s, i in ids.items() if s[1] == self.r}
         self.one_level_per_set = len({e for e, _ in ids}) == len(ids)
         if self.r == 0 and len(initial_sets) != 1:
