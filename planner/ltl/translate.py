@@ -89,7 +89,7 @@ def to_buchi(raw: RawBuchi, atom_names: tuple[str, ...]) -> Buchi:
         base = "init" if q == raw.initial else f"S{q}"
         names.append(f"accept_{base}" if q in raw.accepting else base)
     guards: dict[frozenset[Cube], Guard] = {}
-    single: dict[int, Guard] = {}  # most transitions have one cube, shared between them
+    of_list: dict[int, Guard] = {}  # lists of cubes are shared between transitions
 
     def guard(cubes: list[Cube]) -> Guard:
         key = frozenset(cubes)
@@ -104,14 +104,11 @@ def to_buchi(raw: RawBuchi, atom_names: tuple[str, ...]) -> Buchi:
         out = raw.edges[source]
         for target in sorted(out):
             cubes = out[target]
-            if len(cubes) == 1:
-                found = single.get(id(cubes[0]))
-                if found is None:
-                    found = single[id(cubes[0])] = guard(cubes)
-            elif cubes:
-                found = guard(cubes)
-            else:
-                continue
+            found = of_list.get(id(cubes))
+            if found is None:
+                if not cubes:
+                    continue
+                found = of_list[id(cubes)] = guard(cubes)
             edges.append(new_edge(Edge, (source, found, target)))
     return Buchi(
         atoms=atom_names,
