@@ -20,6 +20,9 @@ def add_mask(masks: list[Mask], pos: int, neg: int) -> None:
         if pos & other_pos == pos and neg & other_neg == neg:
             implied_by_new = True
     if implied_by_new:
+        if len(masks) == 1:  # the usual case: a weaker cube replaces the one there
+            masks[0] = (pos, neg)
+            return
         masks[:] = [(p, n) for p, n in masks if not (pos & p == pos and neg & n == neg)]
     masks.append((pos, neg))
 
