@@ -321,8 +321,10 @@ class Degeneralizer:
             if key[1] == self.r:
                 continue
             masks = out[key]
-            if better:
+            if better and len(masks) > 1:
                 kept[key] = [m for m in masks if not masks_cover(better, *m)]
+            elif better and masks_cover(better, *masks[0]):
+                kept[key] = []  # the usual target, of one cube, covered
             better += masks
 
     def build(self) -> RawBuchi:
