@@ -17,7 +17,6 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Iterator
-from typing import Any
 
 import numpy as np
 
@@ -381,7 +380,7 @@ def _fewest_literal_cubes(
 ) -> frozenset[tuple[int, frozenset[Cube]]]:
     """For each block of ``out``'s targets, its cubes with the fewest literals (``literals``
     caches each cube's count by id)."""
-    fewest: dict[int, list[Any]] = {}  # each block's fewest count, then its cubes
+    fewest: dict[int, tuple[int, list[Cube]]] = {}
     for target, cubes in out.items():
         b = block[target]
         found = fewest.get(b)
@@ -390,10 +389,10 @@ def _fewest_literal_cubes(
             if count is None:
                 count = literals[id(cube)] = len(cube.pos) + len(cube.neg)
             if found is None or count < found[0]:
-                found = fewest[b] = [count, cube]
+                found = fewest[b] = (count, [cube])
             elif count == found[0]:
-                found.append(cube)
-    return frozenset((b, frozenset(found[1:])) for b, found in fewest.items())
+                found[1].append(cube)
+    return frozenset((b, frozenset(cubes)) for b, (_, cubes) in fewest.items())
 
 
 def _guards_by_block(out: dict[int, list[Cube]], block: list[int]) -> dict[int, list[Cube]]:
