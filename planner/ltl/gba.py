@@ -18,12 +18,13 @@ guards of merged partial products are unions of cubes, kept irredundant, so a cu
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from operator import itemgetter
 
 from planner.errors import AutomatonTooLargeError
 from planner.ltl.guard import Cube
-from planner.ltl.masks import Mask, add_mask, masks_cover
+from planner.ltl.masks import CubeOf, Mask, add_mask, masks_cover
 from planner.ltl.vwaa import Vwaa
 
 BaState = tuple[frozenset[int], int]
@@ -49,7 +50,7 @@ class RawBuchi:
     initial: int
     accepting: set[int]
     edges: dict[int, dict[int, list[Cube]]]
-    names: list[object] = field(default_factory=list)
+    names: Sequence[object] = field(default_factory=list)
 
     @property
     def num_states(self) -> int:
@@ -88,7 +89,7 @@ class Degeneralizer:
         self._free_bits = sum(1 << q for q in vwaa.final_free)
         self._giving_way: dict[tuple[int, int], Cube] | None = None
         self._states_from_bits: dict[int, frozenset[int]] = {}
-        self._cube_of = _CubeOf(self._atom_bits)
+        self._cube_of = CubeOf(self._atom_bits)
         self._ranks_from: dict[int, dict[int, int]] = {}
         self._order_from: dict[int, list[tuple[int, list[Step]]]] = {}
         self._restarts: dict[int, dict[BitState, list[Mask]]] = {}
@@ -395,23 +396,3 @@ class Degeneralizer:
         e, level = state
         body = " & ".join(sorted(self.vwaa.name(q) for q in self._states_of(e))) or "true"
         return f"{{{body}}}/{level}"
-
-
-class _CubeOf(dict[Mask, Cube]):
-    """The cube of each mask, made once (the masks' bits are those of ``atom_bits``)."""
-
-    def __init__(self, atom_bits: dict[str, int]) -> None:
-        super().__init__()
-        self.atom_bits = atom_bits
-        self._atoms: dict[int, frozenset[str]] = {}
-
-    def __missing__(self, mask: Mask) -> Cube:
-        pos, neg = mask
-        cube = self[mask] = Cube(self._atoms_of(pos), self._atoms_of(neg))
-        return cube
-
-    def _atoms_of(self, bits: int) -> frozenset[str]:
-        atoms = self._atoms.get(bits)
-        if atoms is None:
-            atoms = self._atoms[bits] = frozenset(a for a, b in self.atom_bits.items() if b & bits)
-        return atoms

@@ -7,6 +7,8 @@ degeneralizer numbers the atoms). The functions mirror :func:`planner.ltl.gba.ad
 
 from __future__ import annotations
 
+from planner.ltl.guard import Cube
+
 Mask = tuple[int, int]
 
 
@@ -44,3 +46,23 @@ def masks_cover(masks: list[Mask], pos: int, neg: int) -> bool:
     atoms = first_pos | first_neg
     atom = atoms & -atoms
     return masks_cover(rest, atom, 0) and masks_cover(rest, 0, atom)
+
+
+class CubeOf(dict[Mask, Cube]):
+    """The cube of each mask, made once (the masks' bits are those of ``atom_bits``)."""
+
+    def __init__(self, atom_bits: dict[str, int]) -> None:
+        super().__init__()
+        self.atom_bits = atom_bits
+        self._atoms: dict[int, frozenset[str]] = {}
+
+    def __missing__(self, mask: Mask) -> Cube:
+        pos, neg = mask
+        cube = self[mask] = Cube(self._atoms_of(pos), self._atoms_of(neg))
+        return cube
+
+    def _atoms_of(self, bits: int) -> frozenset[str]:
+        atoms = self._atoms.get(bits)
+        if atoms is None:
+            atoms = self._atoms[bits] = frozenset(a for a, b in self.atom_bits.items() if b & bits)
+        return atoms

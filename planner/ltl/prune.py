@@ -13,7 +13,7 @@ from collections.abc import Callable
 from planner.ltl.automaton import Buchi, Edge
 from planner.ltl.gba import RawBuchi
 from planner.ltl.guard import Cube, Guard
-from planner.ltl.reduce import trim
+from planner.ltl.trim import trim
 
 
 def prune(nba: Buchi, realisable: Callable[[Cube], bool]) -> Buchi:

@@ -11,8 +11,9 @@ from planner.ltl.formula import parse, to_nnf
 from planner.ltl.gba import Degeneralizer, RawBuchi
 from planner.ltl.guard import Cube
 from planner.ltl.letter_simulation import letter_simulation
-from planner.ltl.reduce import LETTER_ATOMS, cube_simulation, merge_identical, trim
+from planner.ltl.reduce import LETTER_ATOMS, cube_simulation, merge_identical
 from planner.ltl.rewrite import simplify
+from planner.ltl.trim import trim
 from planner.ltl.vwaa import build_vwaa
 
 CORPUS = [

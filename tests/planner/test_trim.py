@@ -6,7 +6,7 @@ import random
 
 from planner.ltl.gba import RawBuchi
 from planner.ltl.guard import Cube
-from planner.ltl.reduce import trim
+from planner.ltl.trim import trim
 
 
 def _reach(start: int, edges: dict[int, dict[int, list[Cube]]]) -> set[int]:
