@@ -1,5 +1,6 @@
 """The translator's instruction count (``bench/translator_instructions.py``) measures the
-translation alone: more instructions for a larger automaton, none for the imports."""
+translation alone: more instructions for a larger automaton, none for the imports (those of
+the first translation included)."""
 
 from __future__ import annotations
 
@@ -20,8 +21,11 @@ def test_translation_counts_grow_with_the_automaton() -> None:
     with ThreadPoolExecutor(2) as pool:
         one = translation(ROOT, "gf-and", 1, pool)
         four = translation(ROOT, "gh-r", 4, pool)
-    assert 0 < one < four
-    assert one < 50_000_000  # the imports (some 600 million) are not counted
+    # A fresh interpreter's count moves by up to ten million from run to run; a one-state
+    # automaton is well within that, and an import counted (numpy.ma alone is some 50 million,
+    # the translator's modules some 500) would not be.
+    assert abs(one) < 25_000_000
+    assert four > one + 40_000_000
 
 
 @pytest.mark.skipif(shutil.which("valgrind") is None, reason="valgrind is not installed")
