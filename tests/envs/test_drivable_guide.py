@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 from functools import cache
+from typing import Any
 
 import numpy as np
 import pytest
@@ -22,6 +23,7 @@ from envs.options import EnvOptions
 from envs.robots import make_robot, robot_params
 from envs.spec import RobotSpec
 from envs.track import Track, lead_target, pursuit_target
+from planner.decompose import SubTask
 from planner.geometry.drivable import thin
 from planner.geometry.pose import Pose
 from planner.geometry.shapes import Ball, Box
@@ -54,7 +56,7 @@ def racecar_mission(model: str = "racecar") -> Mission:
     return Mission(Prebuilt(world), RobotSpec(model=model, start=START, radius=RADIUS))
 
 
-def course() -> list:  # type: ignore[type-arg]
+def course() -> list[SubTask]:
     world, plan = lane()
     rho = FACTOR * robot_params("racecar").min_turning_radius()
     steps = clearances(RADIUS, plan.hold)
@@ -89,7 +91,7 @@ def test_a_racecar_following_the_redrawn_guide_makes_the_u_turn() -> None:
     try:
         for seed in range(3):
             env.reset(seed=seed)
-            pursuit, info = Pursuit(path, 0.6), {}
+            pursuit, info = Pursuit(path, 0.6), dict[str, Any]()
             for _ in range(env.max_steps):
                 target = pursuit.target(env.robot.position())
                 _, _, done, cut, info = env.step(CONTROLLERS["racecar"](env.robot, target))
@@ -171,7 +173,11 @@ def test_pursuit_turn_is_the_arc_curvature_in_units_of_the_tightest() -> None:
 
 def test_the_pursuit_feedforward_alone_makes_the_u_turn() -> None:
     world, plan = lane()
-    options = {"drivable_guide": FACTOR, "guide_feedforward": 1.0, "min_forward": 0.2}
+    options: dict[str, Any] = {
+        "drivable_guide": FACTOR,
+        "guide_feedforward": 1.0,
+        "min_forward": 0.2,
+    }
     env = make_env(
         racecar_mission(), 1, "rrt", world=world, plan=plan, feedforward_law="pursuit", **options
     )
@@ -224,7 +230,11 @@ def test_pursuit_takes_the_tight_lookahead_where_the_track_ahead_is_tight() -> N
     robot = make_robot("racecar", world, RADIUS)
     try:
         rho = robot.params.min_turning_radius()
-        law = {"guide_feedforward": 1.0, "feedforward_law": "pursuit", "min_forward": 0.2}
+        law: dict[str, Any] = {
+            "guide_feedforward": 1.0,
+            "feedforward_law": "pursuit",
+            "min_forward": 0.2,
+        }
         usual = ActionShaping(robot, EnvOptions(**law))
         tight = ActionShaping(robot, EnvOptions(**law, pursuit_tight_lookahead=0.5))
         assert tight.ahead == usual.ahead == pytest.approx(PURSUIT_LOOKAHEAD * rho)
@@ -280,7 +290,11 @@ def test_a_scaled_residual_corrects_the_pursuit_without_overriding_it() -> None:
     world = World(np.array([[0.0, 12.0], [0.0, 5.0]]), [], {})
     robot = make_robot("racecar", world, RADIUS)
     try:
-        law = {"guide_feedforward": 1.0, "feedforward_law": "pursuit", "min_forward": 0.2}
+        law: dict[str, Any] = {
+            "guide_feedforward": 1.0,
+            "feedforward_law": "pursuit",
+            "min_forward": 0.2,
+        }
         full = ActionShaping(robot, EnvOptions(**law))
         scaled = ActionShaping(robot, EnvOptions(**law, residual_scale=0.3))
         robot.reset(np.array([2.0, 1.3]), np.random.default_rng(0), heading=0.0)
@@ -306,7 +320,7 @@ def test_a_world_frame_robot_s_whole_correction_is_scaled() -> None:
     world = World(np.array([[0.0, 12.0], [0.0, 5.0]]), [], {})
     robot = make_robot("point", world, 0.1)
     try:
-        law = {"guide_feedforward": 0.5}
+        law: dict[str, Any] = {"guide_feedforward": 0.5}
         full = ActionShaping(robot, EnvOptions(**law))
         scaled = ActionShaping(robot, EnvOptions(**law, residual_scale=0.3))
         robot.reset(np.array([2.0, 1.0]), np.random.default_rng(0))

@@ -25,6 +25,7 @@ from envs.options import EnvOptions
 from envs.rays import RAY_SECONDS, RayCaster, default_ray_range
 from envs.rewards import REWARD_MODES
 from envs.robots import RobotConfigError, make_robot
+from envs.robots.unicycle import UnicycleParams
 from envs.spec import RobotSpec
 from planner.decompose import SubTask, split_subtask
 from planner.geometry.shapes import Ball, Box, Polygon
@@ -601,7 +602,9 @@ def test_guide_feedforward_steers_a_heading_robot_toward_the_guide_ahead(
     env.step(np.zeros(2))
     turned = math.remainder(env.robot.heading() - before, math.tau)
     # the error is pi - 0.1 (to the left): a full left turn, at any forward command
-    assert turned == pytest.approx(env.robot.params.max_turn_rate * env.robot.dt)
+    params = env.robot.params
+    assert isinstance(params, UnicycleParams)
+    assert turned == pytest.approx(params.max_turn_rate * env.robot.dt)
     heading = math.atan2(toward[1], toward[0])
     assert steering_toward(heading + 0.2, toward) == pytest.approx(-0.2 / (math.pi / 2))
     assert steering_toward(heading, np.zeros(2)) == 0.0

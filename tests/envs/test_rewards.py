@@ -107,7 +107,9 @@ def test_every_reward_mode_ends_on_a_violation_when_the_env_has_the_plan(reward:
     assert terminated and not truncated and reward_ == env.mode.crash
     assert info["violation"] and not info["collision"] and info["is_success"] is False
     # Inside the goal the sub-task succeeds as before; outside both regions it runs on.
-    env.reset(seed=0, options={"position": list(world.regions["g1"].center)})
+    goal = world.regions["g1"]
+    assert isinstance(goal, Ball)
+    env.reset(seed=0, options={"position": list(goal.center)})
     assert env.step(np.zeros(2))[4]["is_success"]
     env.reset(seed=0, options={"start": 0})
     _, _, terminated, _, info = env.step(np.zeros(2))
@@ -170,8 +172,12 @@ def test_dense_progress_pays_the_change_of_a_potential_toward_the_next_ball() ->
     assert reward == pytest.approx(-step_cost)  # no new ball: only the step cost
 
 
+Flags = Sequence[bool] | np.ndarray
+"""One flag per step of a batch."""
+
+
 def paper_rewards(
-    mode: PaperReward, crashed: Sequence[bool], reached: Sequence[bool], improved: Sequence[bool]
+    mode: PaperReward, crashed: Flags, reached: Flags, improved: Flags
 ) -> list[float]:
     """The ``rrt-paper`` reward of each step of a batch (gain and position do not matter)."""
     return [

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from functools import cache
+from typing import Any
 
 import numpy as np
 
@@ -57,7 +58,11 @@ def test_the_guide_backs_into_the_hall_before_it_drives_to_the_goal() -> None:
 def test_the_pursuit_feedforward_alone_makes_the_three_point_turn() -> None:
     world, plan = lane()
     mission = Mission(Prebuilt(world), RobotSpec(model="racecar", start=START, radius=RADIUS))
-    options = {"drivable_guide": FACTOR, "guide_feedforward": 1.0, "min_forward": 0.2}
+    options: dict[str, Any] = {
+        "drivable_guide": FACTOR,
+        "guide_feedforward": 1.0,
+        "min_forward": 0.2,
+    }
     env = make_env(mission, 0, "rrt", world=world, plan=plan, feedforward_law="pursuit", **options)
     try:
         for seed in range(3):

@@ -4,7 +4,7 @@ is stored or enqueued, and the missions already there are untouched."""
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Iterator
+from collections.abc import Iterator, MutableMapping
 from pathlib import Path
 from typing import Any
 
@@ -210,7 +210,7 @@ def test_unicode_digits_in_paths_and_lengths(setup: tuple[TestClient, RecordingE
     assert problem["loc"] == ["body", "training", "env", "²"]
     assert body_problem("world.obstacles.0", "x").loc == ["body", "world", "obstacles", 0]
 
-    sent: list[dict[str, Any]] = []
+    sent: list[MutableMapping[str, Any]] = []
 
     async def app(scope: Any, receive: Any, send: Any) -> None:
         await send({"type": "http.response.start", "status": 204, "headers": []})
@@ -219,7 +219,7 @@ def test_unicode_digits_in_paths_and_lengths(setup: tuple[TestClient, RecordingE
     async def receive() -> dict[str, Any]:
         return {"type": "http.request", "body": b"", "more_body": False}
 
-    async def send(message: dict[str, Any]) -> None:
+    async def send(message: MutableMapping[str, Any]) -> None:
         sent.append(message)
 
     scope = {"type": "http", "headers": [(b"content-length", "²".encode())]}

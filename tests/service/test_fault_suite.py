@@ -133,7 +133,7 @@ def test_sigkill_of_the_worker_in_planning_training_and_assembly(cluster: Cluste
     mission_id = cluster_mission(cluster)
     found = cluster.snapshot(mission_id)
     assert found.mission.plan_attempts == 2, found.mission  # the killed planning, then one
-    assert Path(found.mission.bundle_path).is_file()
+    assert found.mission.bundle_path is not None and Path(found.mission.bundle_path).is_file()
     moves = [(p["status"], p["reason"]) for k, p in cluster.events(mission_id) if k == "status"]
     assert moves.count(("planning", None)) == 2, moves
     assert moves.count(("evaluating", None)) == 2, moves  # the killed assembly, then one

@@ -144,6 +144,7 @@ def test_an_assembly_that_keeps_dying_fails_the_mission_saying_so(settings: Sett
     assert assemble_step(settings, mission_id, Recorder()) == "failed"
     mission, _ = mission_and_jobs(settings, mission_id)
     assert mission.status == MissionStatus.failed and mission.bundle_path is None
+    assert mission.reason is not None
     assert mission.reason.startswith(f"assembly: gave up after {settings.max_attempts} attempts")
 
 
@@ -201,7 +202,7 @@ def test_a_job_failing_transiently_at_every_attempt_ends_at_the_cap(
             session.execute(update(Job).values(not_before=None))
     assert train_step(settings, mission_id, 0, Recorder(), in_chord=True) == "failed"
     mission, jobs = mission_and_jobs(settings, mission_id)
-    assert mission.status == MissionStatus.failed
+    assert mission.status == MissionStatus.failed and mission.reason is not None
     assert mission.reason.startswith(f"sub-task 0: gave up after {settings.max_attempts} attempts")
     assert "connection refused" in mission.reason and jobs[0].status == JobStatus.failed
 

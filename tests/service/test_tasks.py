@@ -306,11 +306,12 @@ def test_a_job_handed_to_another_worker_stops_writing(settings: Settings) -> Non
     monitor.curve_point(CurvePoint(50, 1, 0.5))
     with db.session() as session:
         assert repository.learning_curve(session, job.id) == []
-        job = repository.get_job(session, mission_id, 0)
+        stored = repository.get_job(session, mission_id, 0)
         assert (
-            job is not None
-            and job.steps_done == 0
-            and job.heartbeat_at < utcnow() - timedelta(seconds=30)
+            stored is not None
+            and stored.steps_done == 0
+            and stored.heartbeat_at is not None
+            and stored.heartbeat_at < utcnow() - timedelta(seconds=30)
         )
 
 

@@ -162,9 +162,10 @@ def service(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Service]
             LTLNAV_BROKER_URL=REDIS_URL,
             LTLNAV_RESULT_BACKEND=REDIS_URL,
         )
-    settings = Settings(
-        **{k.removeprefix("LTLNAV_").lower(): v for k, v in env.items() if k.startswith("LTLNAV_")}
-    )
+    fields: dict[str, Any] = {
+        k.removeprefix("LTLNAV_").lower(): v for k, v in env.items() if k.startswith("LTLNAV_")
+    }
+    settings = Settings(**fields)
     if request.param == "embedded":
         upgrade(settings.database_url)
     logs = tmp_path / "logs"

@@ -30,7 +30,9 @@ class _ActorWeights(BaseCallback):
         self.seen: list[tuple[int, list[torch.Tensor]]] = []
 
     def _weights(self) -> list[torch.Tensor]:
-        return [p.detach().clone() for p in self.model.actor.parameters()]
+        model = self.model
+        assert isinstance(model, SAC)
+        return [p.detach().clone() for p in model.actor.parameters()]
 
     def _on_training_start(self) -> None:
         self.seen.append((self.num_timesteps, self._weights()))

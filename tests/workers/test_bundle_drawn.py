@@ -135,10 +135,10 @@ def test_a_bundle_drives_its_recorded_guides_when_today_s_redraw_differs(
         policy = ConcatenatedPolicy.load(older)
     try:
         assert policy.redrawn_subtasks()
-        drove = rollout_guides(policy)
+        redrawn = rollout_guides(policy)
         assert any(
             d.shape != t.shape or not np.allclose(d, t)
-            for d, t in zip(drove, trained_guides(bundle), strict=True)
+            for d, t in zip(redrawn, trained_guides(bundle), strict=True)
         )
     finally:
         policy.close()

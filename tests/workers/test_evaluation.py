@@ -308,8 +308,8 @@ def test_measured_training_defaults_apply_by_robot_and_yield_to_the_mission() ->
         baseline = tiny_mission(reward={"mode": mode}).training.model_copy(update={"env": {}})
         for model in ("point", "unicycle", "racecar", "quadrotor"):
             theirs, ours = baseline.env_options(model), training.env_options(model)
-            reward_only = {"stall_penalty": theirs.stall_penalty, "rewards": theirs.rewards}
-            assert theirs == replace(ours, **reward_only)
+            reward_only = replace(ours, stall_penalty=theirs.stall_penalty, rewards=theirs.rewards)
+            assert theirs == reward_only
 
 
 def test_the_paper_protocol_is_the_published_env_for_every_mode() -> None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -16,7 +18,7 @@ from workers.policy_act import deterministic_act
     [(SAC, {}), (SAC, {"use_sde": True}), (TD3, {}), (PPO, {})],
     ids=["sac", "sac-gsde", "td3", "ppo"],
 )
-def test_same_actions_as_predict(cls: type[BaseAlgorithm], kwargs: dict[str, object]) -> None:
+def test_same_actions_as_predict(cls: type[BaseAlgorithm], kwargs: dict[str, Any]) -> None:
     env = gym.make("Pendulum-v1")
     model = cls("MlpPolicy", env, seed=3, device="cpu", **kwargs)
     act = deterministic_act(model.policy)

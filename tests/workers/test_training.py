@@ -4,6 +4,7 @@ hear, the training section's validation, the plan document and the job value."""
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -209,7 +210,7 @@ def test_the_reported_evaluation_is_measured_once_after_every_decision_on_a_seed
     import workers.training as training_module
 
     asked: list[tuple[int, int, int]] = []
-    rates = iter([(0.5, 14), 1.0, 0.3])
+    rates: Iterator[float | tuple[float, int]] = iter([(0.5, 14), 1.0, 0.3])
 
     def scripted(
         act: Any, envs: Any, episodes: int, seed: int, needed: int = 0
