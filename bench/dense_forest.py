@@ -20,8 +20,8 @@ with a sub-task under 90 % for the controller of 01301fc (80 % in 20 episodes): 
 racecar's speed target was first reported on. ``racecar-dense-forest-38.yaml`` (0 %) and
 ``-62.yaml`` (80 %), the next two from seeds 16 and 39 on, are tuning worlds
 (``bench/LEARNING.md``). With the controller of 76bbd70 no further seed qualifies at 20 m
-(63-162), at 30 m (48-97) nor at 40 m (0-49); at 10 m ``racecar-dense-forest-10m-21.yaml`` is the next one after
-seed 4 (0 % on sub-task 0; seeds 5-20 held).
+(63-162), at 30 m (48-97) nor at 40 m (0-49); at 10 m ``racecar-dense-forest-10m-21.yaml`` is
+the next one after seed 4 (0 % on sub-task 0; seeds 5-20 held).
 
 Run ``.venv/bin/python bench/dense_forest.py``, then time ``ltlnav train
 bench/missions/racecar-dense-forest-SEED.yaml --out DIR --jobs 2``.
