@@ -37,6 +37,12 @@ from tests.envs.test_scripted import CONTROLLERS, Pursuit
 RADIUS = 0.27
 FACTOR = 1.45
 START = [1.5, 1.5, 0.0]
+PURSUIT_LAW: dict[str, Any] = {
+    "guide_feedforward": 1.0,
+    "feedforward_law": "pursuit",
+    "min_forward": 0.2,
+}
+"""The racecar's pursuit feed-forward, as the env options that switch it on."""
 
 
 @cache
@@ -230,13 +236,8 @@ def test_pursuit_takes_the_tight_lookahead_where_the_track_ahead_is_tight() -> N
     robot = make_robot("racecar", world, RADIUS)
     try:
         rho = robot.params.min_turning_radius()
-        law: dict[str, Any] = {
-            "guide_feedforward": 1.0,
-            "feedforward_law": "pursuit",
-            "min_forward": 0.2,
-        }
-        usual = ActionShaping(robot, EnvOptions(**law))
-        tight = ActionShaping(robot, EnvOptions(**law, pursuit_tight_lookahead=0.5))
+        usual = ActionShaping(robot, EnvOptions(**PURSUIT_LAW))
+        tight = ActionShaping(robot, EnvOptions(**PURSUIT_LAW, pursuit_tight_lookahead=0.5))
         assert tight.ahead == usual.ahead == pytest.approx(PURSUIT_LOOKAHEAD * rho)
         assert tight.tight_ahead == pytest.approx(0.5 * rho)
 
@@ -290,13 +291,8 @@ def test_a_scaled_residual_corrects_the_pursuit_without_overriding_it() -> None:
     world = World(np.array([[0.0, 12.0], [0.0, 5.0]]), [], {})
     robot = make_robot("racecar", world, RADIUS)
     try:
-        law: dict[str, Any] = {
-            "guide_feedforward": 1.0,
-            "feedforward_law": "pursuit",
-            "min_forward": 0.2,
-        }
-        full = ActionShaping(robot, EnvOptions(**law))
-        scaled = ActionShaping(robot, EnvOptions(**law, residual_scale=0.3))
+        full = ActionShaping(robot, EnvOptions(**PURSUIT_LAW))
+        scaled = ActionShaping(robot, EnvOptions(**PURSUIT_LAW, residual_scale=0.3))
         robot.reset(np.array([2.0, 1.3]), np.random.default_rng(0), heading=0.0)
         track = Track.dense(points, 21)
         pursuit = full.apply(np.zeros(2), track, 4)
